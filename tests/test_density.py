@@ -1,0 +1,108 @@
+from __future__ import annotations
+
+import pytest
+import torch
+from torch.distributions import MultivariateNormal
+
+from torchrl_mbe import GaussianKernelNovelty, RollingGaussianDensity
+
+
+def correlated_states(num: int) -> torch.Tensor:
+    mixing = torch.tensor([[1.0, 0.0, 0.0], [0.8, 0.5, 0.0], [-0.3, 0.2, 2.0]])
+    return torch.randn(num, 3) @ mixing.T + torch.tensor([1.0, -2.0, 0.5])
+
+
+def test_gaussian_matches_torch_multivariate_normal_on_a_well_conditioned_window():
+    states = correlated_states(200)
+    density = RollingGaussianDensity(3, window=50)
+    density.update(states)
+    window = states[-50:]
+    reference = MultivariateNormal(window.mean(0), covariance_matrix=torch.cov(window.T))
+    queries = correlated_states(20) * 1.5
+    torch.testing.assert_close(density.log_prob(queries), reference.log_prob(queries), atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(density.score(queries), -reference.log_prob(queries), atol=1e-4, rtol=1e-4)
+    torch.testing.assert_close(density.covariance_matrix, torch.cov(window.T), atol=1e-5, rtol=1e-4)
+
+
+def test_window_keeps_the_last_states_in_visiting_order_across_wraparound():
+    density = RollingGaussianDensity(2, window=5)
+    states = torch.arange(24.0).reshape(12, 2)
+    for chunk in states.split(3):
+        density.update(chunk)
+    torch.testing.assert_close(density.window_states(), states[-5:])
+    assert density.num_stored == 5
+
+
+@pytest.mark.parametrize(
+    "window_states",
+    [
+        torch.stack([torch.linspace(0, 1, 10), torch.full((10,), 3.0)], -1),  # constant dimension
+        torch.tensor([[0.0, 1.0], [1.0, 2.0]]),  # fewer states than num_features + 1 ... on a line
+        torch.tensor([[0.5, 0.5]] * 10),  # duplicates only
+        torch.tensor([[0.5, 0.5]]),  # a single state
+    ],
+    ids=["constant-dim", "collinear", "duplicates", "single-state"],
+)
+def test_gaussian_stays_finite_and_ranks_by_distance_on_singular_windows(window_states):
+    density = RollingGaussianDensity(2, window=50)
+    density.update(window_states)
+    center = window_states.mean(0)
+    near, far = center + 1e-3, center + 1.0
+    scores = density.score(torch.stack([center, near, far]))
+    assert torch.isfinite(scores).all()
+    assert scores[0] < scores[1] < scores[2]
+
+
+def test_empty_window_scores_every_state_equally():
+    density = RollingGaussianDensity(2, window=10)
+    assert torch.equal(density.score(torch.randn(4, 2)), torch.zeros(4))
+
+
+def test_gaussian_uses_correlation_not_only_distance():
+    # States along the diagonal: a point on the diagonal is more likely than one
+    # equally far from the mean but across it, which a distance cannot tell.
+    t = torch.linspace(-1, 1, 50)
+    density = RollingGaussianDensity(2, window=50)
+    density.update(torch.stack([t, t + 0.05 * torch.randn(50)], -1))
+    along, across = torch.tensor([0.7, 0.7]), torch.tensor([0.7, -0.7])
+    assert density.score(along) < density.score(across)
+
+
+def test_per_environment_windows_are_independent():
+    density = RollingGaussianDensity(2, window=4, batch_shape=(3,))
+    visits = torch.randn(6, 3, 2)  # 6 steps of 3 envs
+    density.update(visits)
+    for env in range(3):
+        torch.testing.assert_close(density.window_states()[env], visits[-4:, env])
+    candidates = torch.randn(5, 3, 2)  # 5 candidate states per env
+    assert density.score(candidates).shape == (5, 3)
+    single = RollingGaussianDensity(2, window=4)
+    single.update(visits[:, 1])
+    torch.testing.assert_close(density.score(candidates)[:, 1], single.score(candidates[:, 1]))
+
+
+def test_state_dict_round_trip_restores_window_and_scores():
+    density = RollingGaussianDensity(2, window=20)
+    density.update(torch.randn(30, 2))
+    restored = RollingGaussianDensity(2, window=20)
+    restored.load_state_dict(density.state_dict())
+    queries = torch.randn(7, 2)
+    torch.testing.assert_close(restored.score(queries), density.score(queries))
+    assert restored.num_stored == 20
+
+
+def test_bad_shapes_and_windows_are_rejected_with_a_clear_message():
+    with pytest.raises(ValueError, match="window must be an integer >= 2"):
+        RollingGaussianDensity(2, window=1)
+    with pytest.raises(ValueError, match=r"expects states of shape"):
+        RollingGaussianDensity(2).update(torch.zeros(4, 3))
+
+
+def test_kernel_novelty_is_minus_the_kernel_sum():
+    novelty = GaussianKernelNovelty(2, window=3, bandwidth=0.5)
+    window = torch.tensor([[0.0, 0.0], [1.0, 0.0], [0.0, 2.0]])
+    novelty.update(window)
+    query = torch.tensor([[0.5, 0.5]])
+    expected = -torch.exp(-0.5 * ((query - window) / 0.5).square().sum(-1)).sum()
+    torch.testing.assert_close(novelty.score(query), expected.reshape(1))
+    assert novelty.score(torch.tensor([5.0, 5.0])) > novelty.score(torch.tensor([0.0, 0.0]))

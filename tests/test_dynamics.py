@@ -1,0 +1,93 @@
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.data import Categorical, LazyTensorStorage, OneHot, TensorDictReplayBuffer
+
+from torchrl_mbe import DynamicsLoss, DynamicsModel
+
+# A known linear system: s' = A s + B[a]
+A = torch.tensor([[0.9, 0.1], [-0.2, 0.95]])
+B = torch.tensor([[0.1, 0.0], [0.0, 0.0], [-0.1, 0.05]])
+
+
+def linear_transitions(num: int, spec) -> TensorDict:
+    observation = torch.rand(num, 2) * 2 - 1
+    index = torch.randint(3, (num,))
+    action = torch.nn.functional.one_hot(index, 3) if isinstance(spec, OneHot) else index
+    next_observation = observation @ A.T + B[index]
+    return TensorDict({"observation": observation, "action": action, ("next", "observation"): next_observation}, [num])
+
+
+@pytest.mark.parametrize("spec", [OneHot(3), Categorical(3)], ids=["one-hot", "categorical"])
+def test_dynamics_model_learns_a_linear_system_with_dynamics_loss(spec):
+    dynamics = DynamicsModel(2, spec, num_cells=(64, 64))
+    dynamics.fit_normalization(linear_transitions(1000, spec))
+    loss = DynamicsLoss(dynamics)
+    optimizer = torch.optim.Adam(loss.parameters(), lr=3e-3)
+    test = linear_transitions(500, spec)
+    untrained = loss(test)["mse_dynamics"].item()
+    for _ in range(1500):
+        optimizer.zero_grad()
+        loss(linear_transitions(128, spec))["loss_dynamics"].backward()
+        optimizer.step()
+    trained = loss(test)["mse_dynamics"].item()
+    assert trained < 1e-4 < untrained
+
+
+def test_dynamics_model_predicts_deltas_added_to_the_observation():
+    dynamics = DynamicsModel(2, OneHot(3))
+    with torch.no_grad():
+        for parameter in dynamics.net.parameters():
+            parameter.zero_()
+    td = TensorDict({"observation": torch.randn(4, 2), "action": OneHot(3).rand((4,))}, [4])
+    # with a zero network the prediction is "no change"
+    torch.testing.assert_close(dynamics(td)["predicted_observation"], td["observation"])
+
+
+def test_paper_architecture_by_default():
+    dynamics = DynamicsModel(2, OneHot(3))
+    layers = [m for m in dynamics.net.modules() if isinstance(m, torch.nn.Linear)]
+    assert [layer.out_features for layer in layers] == [24, 24, 2]
+    assert sum(isinstance(m, torch.nn.ReLU) for m in dynamics.net.modules()) == 2
+
+
+def test_normalization_refits_from_a_replay_buffer_and_travels_with_state_dict():
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(100))
+    data = linear_transitions(100, OneHot(3))
+    data["observation"] = data["observation"] * 5 + 3
+    buffer.extend(data)
+    dynamics = DynamicsModel(2, OneHot(3))
+    dynamics.fit_normalization(buffer)
+    torch.testing.assert_close(dynamics.observation_loc, data["observation"].mean(0))
+    torch.testing.assert_close(dynamics.observation_scale, data["observation"].std(0))
+    restored = DynamicsModel(2, OneHot(3))
+    restored.load_state_dict(dynamics.state_dict())
+    torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
+
+
+def test_dynamics_loss_reads_renamed_and_nested_keys():
+    dynamics = DynamicsModel(2, OneHot(3))
+    loss = DynamicsLoss(dynamics)
+    data = linear_transitions(16, OneHot(3))
+    renamed = TensorDict(
+        {
+            ("agent", "obs"): data["observation"],
+            ("agent", "act"): data["action"],
+            ("next", "agent", "obs"): data["next", "observation"],
+        },
+        [16],
+    )
+    loss.set_keys(observation=("agent", "obs"), action=("agent", "act"), next_observation=("next", "agent", "obs"))
+    torch.testing.assert_close(loss(renamed)["loss_dynamics"], DynamicsLoss(dynamics)(data)["loss_dynamics"])
+    assert ("agent", "obs") in loss.in_keys
+    with pytest.raises(ValueError, match="not an accepted tensordict key"):
+        loss.set_keys(obs="x")
+
+
+def test_non_discrete_action_spec_is_rejected():
+    from torchrl.data import Bounded
+
+    with pytest.raises(TypeError, match="discrete action spec"):
+        DynamicsModel(2, Bounded(-1, 1, (1,)))

@@ -1,0 +1,277 @@
+"""Novelty scorers over a rolling window of recently visited states.
+
+Every scorer honours one contract: ``update(states)`` pushes visited states into
+the window and ``score(states)`` returns one number per state, higher = rarer.
+
+Shapes follow :mod:`torch.distributions`: a scorer built with
+``batch_shape=(B,)`` keeps one window per batch element (one per environment of
+a batched env) and accepts states of shape ``(*sample_shape, B, num_features)``.
+With the default ``batch_shape=()`` one window is shared and any leading
+dimensions are sample dimensions.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from torch import nn
+
+__all__ = ["RollingWindowNovelty", "RollingGaussianDensity", "GaussianKernelNovelty"]
+
+
+class RollingWindowNovelty(nn.Module):
+    """Base class: a circular buffer of the last ``window`` visited states.
+
+    Subclasses implement :meth:`score` and may override :meth:`_refit`, which
+    runs once after every :meth:`update` so that scoring reuses its result.
+    The window, its write counter and anything ``_refit`` caches are buffers:
+    they travel with ``state_dict``, ``.to(device)`` and collector weight sync.
+
+    Args:
+        num_features (int): size of a state vector.
+        window (int): how many recent states to keep (the paper's F). At least 2.
+
+    Keyword Args:
+        batch_shape (tuple of int): one independent window per batch element.
+            Defaults to ``()`` (one shared window).
+        device (torch.device, optional): where the buffers live.
+    """
+
+    def __init__(
+        self,
+        num_features: int,
+        window: int = 50,
+        *,
+        batch_shape: Sequence[int] = (),
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__()
+        if int(num_features) < 1:
+            raise ValueError(f"num_features must be a positive integer, got {num_features}.")
+        if int(window) < 2:
+            raise ValueError(
+                f"window must be an integer >= 2 (the paper uses 50), got {window}: "
+                "a density needs at least two states to estimate a spread."
+            )
+        self.num_features = int(num_features)
+        self.window = int(window)
+        self.batch_shape = torch.Size(batch_shape)
+        self.register_buffer(
+            "states", torch.zeros(*self.batch_shape, self.window, self.num_features, device=device)
+        )
+        self.register_buffer("num_seen", torch.zeros((), dtype=torch.int64, device=device))
+
+    @property
+    def num_stored(self) -> int:
+        """How many slots of the window hold a state (at most ``window``)."""
+        return min(int(self.num_seen), self.window)
+
+    def window_states(self) -> torch.Tensor:
+        """The stored states in visiting order, shape ``(*batch_shape, num_stored, num_features)``."""
+        seen, stored = int(self.num_seen), self.num_stored
+        order = torch.arange(seen - stored, seen, device=self.states.device) % self.window
+        return self.states[..., order, :]
+
+    @torch.no_grad()
+    def update(self, states: torch.Tensor) -> None:
+        """Pushes visited states, oldest first, into the window.
+
+        Args:
+            states (Tensor): shape ``(*sample_shape, *batch_shape, num_features)``;
+                the sample dimensions are flattened in row-major (time) order.
+        """
+        states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
+        states = states[-self.window :].to(self.states)
+        seen = int(self.num_seen)
+        slots = torch.arange(seen, seen + states.shape[0], device=self.states.device) % self.window
+        self.states[..., slots, :] = states.movedim(0, -2)
+        self.num_seen.add_(states.shape[0])
+        self._refit()
+
+    def reset(self) -> None:
+        """Empties the window."""
+        self.num_seen.zero_()
+        self._refit()
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """Novelty of each state, shape ``states.shape[:-1]``; higher = rarer."""
+        raise NotImplementedError
+
+    def _refit(self) -> None:
+        """Recomputes whatever :meth:`score` reuses; called after each update."""
+
+    def _check_shape(self, states: torch.Tensor) -> torch.Tensor:
+        trailing = (*self.batch_shape, self.num_features)
+        if tuple(states.shape[states.ndim - len(trailing) :]) != trailing or states.ndim < len(trailing):
+            raise ValueError(
+                f"{type(self).__name__} expects states of shape (*sample_shape, "
+                f"{', '.join(map(str, trailing))}), got {tuple(states.shape)}."
+            )
+        return states
+
+    def _load_from_state_dict(self, *args, **kwargs) -> None:
+        super()._load_from_state_dict(*args, **kwargs)
+        self._refit()
+
+    def extra_repr(self) -> str:
+        return f"num_features={self.num_features}, window={self.window}, batch_shape={tuple(self.batch_shape)}"
+
+
+class RollingGaussianDensity(RollingWindowNovelty):
+    """Multivariate Gaussian fitted to the last ``window`` visited states.
+
+    The paper's novelty measure (Gou & Liu, "DQN with Model-Based Exploration"):
+    ``N(s | mu_F, Sigma_F)`` with the empirical mean and the unbiased empirical
+    covariance of the window ``S_F``; :meth:`score` is ``-log N``, so the planner's
+    argmax of score is the paper's argmin of density.
+
+    A window's covariance is singular when a state dimension is constant, when it
+    holds fewer than ``num_features + 1`` distinct states, or when states repeat.
+    Two scale-free repairs keep the density finite and meaningful, and leave a
+    well-conditioned window untouched:
+
+    * each variance is floored at ``min_variance`` (only constant dimensions are
+      affected), and
+    * the eigenvalues of the correlation matrix are floored at
+      ``min_correlation_eigenvalue``: directions the window never moved in get a
+      small but positive spread, so a prediction that leaves the window's
+      subspace scores as very rare instead of infinitely rare.
+
+    The factorization (float64 ``eigh`` of a ``num_features``-square matrix) is
+    computed once per :meth:`update` and cached as a whitening matrix, so scoring
+    every candidate action of a step costs one matrix product.
+
+    Args:
+        num_features (int): size of a state vector.
+        window (int): the paper's F, number of recent states fitted. Defaults to 50.
+
+    Keyword Args:
+        batch_shape (tuple of int): one window per batch element. Defaults to ``()``.
+        min_variance (float): absolute floor on each variance. Defaults to ``1e-8``.
+        min_correlation_eigenvalue (float): floor on the correlation matrix's
+            eigenvalues. Defaults to ``1e-6``.
+        device (torch.device, optional): where the buffers live.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe import RollingGaussianDensity
+        >>> density = RollingGaussianDensity(num_features=2, window=50)
+        >>> density.update(torch.randn(100, 2))  # keeps the last 50
+        >>> density.window_states().shape
+        torch.Size([50, 2])
+        >>> scores = density.score(torch.tensor([[0.0, 0.0], [5.0, 5.0]]))
+        >>> bool(scores[1] > scores[0])  # the far state is rarer
+        True
+    """
+
+    def __init__(
+        self,
+        num_features: int,
+        window: int = 50,
+        *,
+        batch_shape: Sequence[int] = (),
+        min_variance: float = 1e-8,
+        min_correlation_eigenvalue: float = 1e-6,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__(num_features, window, batch_shape=batch_shape, device=device)
+        if min_variance <= 0 or min_correlation_eigenvalue <= 0:
+            raise ValueError("min_variance and min_correlation_eigenvalue must be > 0.")
+        self.min_variance = float(min_variance)
+        self.min_correlation_eigenvalue = float(min_correlation_eigenvalue)
+        shape = (*self.batch_shape, self.num_features)
+        kwargs = {"dtype": torch.float64, "device": device}
+        self.register_buffer("loc", torch.zeros(shape, **kwargs))
+        self.register_buffer("whitening", torch.zeros(*shape, self.num_features, **kwargs))
+        self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
+
+    @property
+    def covariance_matrix(self) -> torch.Tensor:
+        """The regularized covariance the density uses, ``(*batch_shape, D, D)``."""
+        inverse = torch.linalg.inv(self.whitening)
+        return (inverse @ inverse.mT).to(self.states.dtype)
+
+    def log_prob(self, states: torch.Tensor) -> torch.Tensor:
+        """``log N(s | mu_F, Sigma_F)`` per state; zeros while the window is empty."""
+        states = self._check_shape(states)
+        if self.num_stored == 0:
+            return states.new_zeros(states.shape[:-1])
+        centered = states.to(self.loc) - self.loc
+        whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
+        mahalanobis = whitened.square().sum(-1)
+        return (-0.5 * mahalanobis - self.log_normalizer).to(states.dtype)
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """``-log_prob(states)``: higher = rarer."""
+        return -self.log_prob(states)
+
+    def _refit(self) -> None:
+        stored = self.window_states().to(torch.float64)
+        if stored.shape[-2] == 0:
+            return
+        loc = stored.mean(-2)
+        centered = stored - loc.unsqueeze(-2)
+        covariance = centered.mT @ centered / max(stored.shape[-2] - 1, 1)
+        std = covariance.diagonal(dim1=-2, dim2=-1).clamp_min(self.min_variance).sqrt()
+        correlation = covariance / (std.unsqueeze(-1) * std.unsqueeze(-2))
+        eigenvalues, eigenvectors = torch.linalg.eigh(correlation)
+        eigenvalues = eigenvalues.clamp_min(self.min_correlation_eigenvalue)
+        # Sigma = diag(std) V diag(lambda) V^T diag(std)  =>  W = diag(lambda^-1/2) V^T diag(1/std)
+        whitening = (eigenvectors / eigenvalues.sqrt().unsqueeze(-2)).mT / std.unsqueeze(-2)
+        log_det = eigenvalues.log().sum(-1) + 2 * std.log().sum(-1)
+        self.loc.copy_(loc)
+        self.whitening.copy_(whitening)
+        self.log_normalizer.copy_(0.5 * (log_det + self.num_features * math.log(2 * math.pi)))
+
+
+class GaussianKernelNovelty(RollingWindowNovelty):
+    """Kernel-similarity novelty, the baseline the paper compares against (Oh et al., 2015).
+
+    ``score(s) = -sum_i k(s, s_i)`` over the states ``s_i`` of the window, with the
+    Gaussian kernel ``k(s, s') = exp(-||(s - s') / bandwidth||^2 / 2)``. Unlike
+    :class:`RollingGaussianDensity` it measures plain (scaled) distances and
+    ignores correlations between dimensions.
+
+    Args:
+        num_features (int): size of a state vector.
+        window (int): number of recent states compared against. Defaults to 50.
+
+    Keyword Args:
+        bandwidth (float or sequence of float): kernel width, one per feature or
+            shared. Defaults to ``0.1``.
+        batch_shape (tuple of int): one window per batch element. Defaults to ``()``.
+        device (torch.device, optional): where the buffers live.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe import GaussianKernelNovelty
+        >>> novelty = GaussianKernelNovelty(num_features=2, window=10, bandwidth=0.5)
+        >>> novelty.update(torch.zeros(10, 2))
+        >>> novelty.score(torch.tensor([[0.0, 0.0], [1.0, 0.0]]))
+        tensor([-10.0000,  -1.3534])
+    """
+
+    def __init__(
+        self,
+        num_features: int,
+        window: int = 50,
+        *,
+        bandwidth: float | Sequence[float] = 0.1,
+        batch_shape: Sequence[int] = (),
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__(num_features, window, batch_shape=batch_shape, device=device)
+        bandwidth = torch.as_tensor(bandwidth, dtype=torch.float32, device=device)
+        if (bandwidth <= 0).any() or bandwidth.numel() not in (1, self.num_features):
+            raise ValueError(
+                f"bandwidth must be positive, one value or {self.num_features} values, got {bandwidth.tolist()}."
+            )
+        self.register_buffer("bandwidth", bandwidth.expand(self.num_features).clone())
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """``-sum_i k(s, s_i)``: higher = rarer; zeros while the window is empty."""
+        states = self._check_shape(states)
+        stored = self.window_states()
+        scaled_distance = (states.unsqueeze(-2) - stored) / self.bandwidth
+        return -torch.exp(-0.5 * scaled_distance.square().sum(-1)).sum(-1)

@@ -1,0 +1,103 @@
+"""Losses: the dynamics network's regression loss as a TorchRL ``LossModule``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from tensordict import NestedKey, TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.objectives import LossModule
+
+__all__ = ["DynamicsLoss"]
+
+
+class DynamicsLoss(LossModule):
+    """Mean squared error between the predicted and the observed next observation.
+
+    Algorithm 1's dynamics step: gradient descent on ``(s_{j+1} - D(s_j, a_j))^2``.
+    The dynamics module may be any TensorDictModule reading an observation and an
+    action and writing one prediction (its own ``in_keys``/``out_keys``); this loss
+    reads the batch under its :attr:`tensor_keys` and feeds the module, so the
+    batch's keys can be renamed with :meth:`set_keys` without touching the module.
+
+    When the module has a ``delta_scale`` buffer (as :class:`~torchrl_mbe.DynamicsModel`
+    does) the error of each dimension is divided by it, so that every dimension
+    weighs the same whatever its units (mbrl-lib trains in normalized units too);
+    ``loss_dynamics`` is that normalized MSE and ``mse_dynamics`` (detached) the
+    raw one, in observation units.
+
+    Args:
+        dynamics (TensorDictModuleBase): the dynamics network.
+
+    Keyword Args:
+        normalize (bool): divide errors by the module's ``delta_scale`` when it
+            has one. Defaults to ``True``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import OneHot
+        >>> from torchrl_mbe import DynamicsLoss, DynamicsModel
+        >>> loss = DynamicsLoss(DynamicsModel(2, OneHot(3)))
+        >>> batch = TensorDict({
+        ...     "observation": torch.randn(8, 2), "action": OneHot(3).rand((8,)),
+        ...     ("next", "observation"): torch.randn(8, 2)}, [8])
+        >>> sorted(loss(batch).keys())
+        ['loss_dynamics', 'mse_dynamics']
+        >>> loss.set_keys(observation="obs")  # read the batch's "obs" instead
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Batch keys read by the loss (renamable with ``set_keys``).
+
+        Attributes:
+            observation (NestedKey): current observation. Defaults to ``"observation"``.
+            action (NestedKey): action taken. Defaults to ``"action"``.
+            next_observation (NestedKey): observed next observation.
+                Defaults to ``("next", "observation")``.
+        """
+
+        observation: NestedKey = "observation"
+        action: NestedKey = "action"
+        next_observation: NestedKey = ("next", "observation")
+
+    default_keys = _AcceptedKeys
+    out_keys = ["loss_dynamics", "mse_dynamics"]
+
+    def __init__(self, dynamics: TensorDictModuleBase, *, normalize: bool = True) -> None:
+        super().__init__()
+        if len(dynamics.in_keys) != 2 or len(dynamics.out_keys) != 1:
+            raise ValueError(
+                "The dynamics module must read exactly (observation, action) and write one prediction; "
+                f"got in_keys={dynamics.in_keys}, out_keys={dynamics.out_keys}."
+            )
+        self.dynamics = dynamics
+        self.normalize = normalize
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        """No value estimator: nothing to forward."""
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        keys = self.tensor_keys
+        return [keys.observation, keys.action, keys.next_observation]
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        keys = self.tensor_keys
+        observation_key, action_key = self.dynamics.in_keys
+        inputs = TensorDict(
+            {observation_key: tensordict.get(keys.observation), action_key: tensordict.get(keys.action)},
+            batch_size=tensordict.batch_size,
+        )
+        prediction = self.dynamics(inputs).get(self.dynamics.out_keys[0])
+        error = prediction - tensordict.get(keys.next_observation)
+        scale = getattr(self.dynamics, "delta_scale", None) if self.normalize else None
+        normalized_error = error if scale is None else error / scale
+        return TensorDict(
+            {
+                "loss_dynamics": normalized_error.square().mean(),
+                "mse_dynamics": error.detach().square().mean(),
+            },
+            batch_size=[],
+        )
