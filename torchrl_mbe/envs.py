@@ -1,11 +1,16 @@
 """Environments: gymnasium discrete-action tasks wrapped the way a DQN needs them."""
 from __future__ import annotations
 
+from functools import partial
+from typing import Literal
+
 import gymnasium as gym
 import torch
-from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
 
-__all__ = ["SUPPORTED_ENVS", "SOLVED_THRESHOLDS", "resolve_env_id", "make_env"]
+from torchrl_mbe.batched_env import BatchedMountainCarEnv
+
+__all__ = ["SUPPORTED_ENVS", "SOLVED_THRESHOLDS", "TORCH_ENVS", "resolve_env_id", "make_env"]
 
 SUPPORTED_ENVS = {
     "mountaincar": "MountainCar-v0",
@@ -17,6 +22,9 @@ SUPPORTED_ENVS = {
 
 SOLVED_THRESHOLDS = {"MountainCar-v0": -110.0, "LunarLander-v3": 200.0, "Acrobot-v1": -100.0, "CartPole-v1": 475.0}
 """Average return over 100 episodes at which gymnasium calls each task solved."""
+
+TORCH_ENVS = {"MountainCar-v0": BatchedMountainCarEnv}
+"""Tasks with a batched torch implementation, used by ``make_env(..., backend="torch")``."""
 
 
 def _supported_list() -> str:
@@ -41,18 +49,41 @@ def resolve_env_id(name: str) -> str:
     return env_id
 
 
-def make_env(name: str, *, seed: int | None = None, device: torch.device | str = "cpu") -> TransformedEnv:
-    """A ``TransformedEnv(GymEnv(...))`` ready for DQN.
+def make_env(
+    name: str,
+    *,
+    num_envs: int = 1,
+    backend: Literal["gym", "torch"] | None = None,
+    seed: int | None = None,
+    device: torch.device | str = "cpu",
+) -> TransformedEnv:
+    """An environment (or a batch of ``num_envs`` copies) ready for DQN.
 
     Transforms: float observations (``DoubleToFloat``), ``StepCounter``
     (``step_count``), ``InitTracker`` (``is_init``) and ``RewardSum``
     (``episode_reward``, the running return). Actions are one-hot.
 
+    Backends:
+
+    * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a ``SerialEnv`` of them
+      (batch size ``(num_envs,)``). Not a ``ParallelEnv``: a classic-control step
+      costs microseconds, far less than the inter-process traffic, so worker
+      processes do not pay off (and this project targets 2-core machines).
+    * ``"torch"``: the copies step together as tensor operations
+      (:data:`TORCH_ENVS`, today MountainCar-v0 as
+      :class:`~torchrl_mbe.batched_env.BatchedMountainCarEnv`); batch size
+      ``(num_envs,)`` even for one copy.
+
+    The default is ``"torch"`` when ``num_envs > 1`` and the task has a torch
+    implementation, ``"gym"`` otherwise (so ``make_env(name)`` is a ``GymEnv``).
+
     Args:
         name (str): a short name of :data:`SUPPORTED_ENVS` or a gymnasium id.
 
     Keyword Args:
-        seed (int, optional): seeds the environment.
+        num_envs (int): number of environment copies. Defaults to 1.
+        backend (str, optional): ``"gym"`` or ``"torch"``; see above.
+        seed (int, optional): seeds the environment (copies get distinct seeds).
         device (torch.device): where the env's tensors live. Defaults to CPU.
 
     Examples:
@@ -60,15 +91,29 @@ def make_env(name: str, *, seed: int | None = None, device: torch.device | str =
         >>> env = make_env("mountaincar", seed=0)
         >>> env.observation_spec["observation"].shape, env.action_spec.space.n
         (torch.Size([2]), 3)
+        >>> type(make_env("mountaincar", num_envs=8).base_env).__name__, make_env("cartpole", num_envs=2).batch_size
+        ('BatchedMountainCarEnv', torch.Size([2]))
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...
         ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1).
     """
-    env = TransformedEnv(
-        GymEnv(resolve_env_id(name), device=device),
-        Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()),
-    )
+    if int(num_envs) < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs}.")
+    env_id = resolve_env_id(name)
+    if backend is None:
+        backend = "torch" if num_envs > 1 and env_id in TORCH_ENVS else "gym"
+    if backend == "torch":
+        if env_id not in TORCH_ENVS:
+            raise ValueError(f"No torch implementation of {env_id}; torch backends exist for {sorted(TORCH_ENVS)}.")
+        base_env = TORCH_ENVS[env_id](num_envs, device=device)
+    elif backend == "gym" and num_envs == 1:
+        base_env = GymEnv(env_id, device=device)
+    elif backend == "gym":
+        base_env = SerialEnv(num_envs, partial(GymEnv, env_id, device=device))
+    else:
+        raise ValueError(f"backend must be 'gym' or 'torch', got {backend!r}.")
+    env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
     if seed is not None:
         env.set_seed(seed)
     return env
