@@ -7,11 +7,13 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import expand_as_right
+from torchrl.data import TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
+from torchrl.modules import EGreedyModule
 
 from torchrl_mbe.planner import NoveltyPlanner
 
-__all__ = ["ModelBasedExplorationPolicy"]
+__all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy", "anneal_eps"]
 
 
 class ModelBasedExplorationPolicy(TensorDictModuleBase):
@@ -104,13 +106,7 @@ class ModelBasedExplorationPolicy(TensorDictModuleBase):
 
     def step(self, frames: int = 1) -> None:
         """Anneals eps by ``frames`` steps of the schedule (no-op once at ``eps_end``)."""
-        if self.schedule == "linear":
-            decrement = frames * (self.eps_init - self.eps_end) / self.annealing_num_steps
-            annealed = self.eps - decrement
-        else:
-            decay = (self.eps_end / self.eps_init) ** (1.0 / self.annealing_num_steps)
-            annealed = self.eps * decay**frames
-        self.eps.copy_(torch.maximum(self.eps_end, annealed))
+        anneal_eps(self, frames)
 
     def report_model_error(self, error: float) -> bool:
         """Feeds the dynamics model's current prediction error to the warm-up switch.
@@ -140,6 +136,54 @@ class ModelBasedExplorationPolicy(TensorDictModuleBase):
             return candidates[torch.randint(len(candidates), tensordict.batch_size, device=candidates.device)]
         planned = self.planner(tensordict.select(self.observation_key))
         return planned.get(self.planner.out_keys[0])
+
+
+class AnnealedEGreedyModule(EGreedyModule):
+    """TorchRL's :class:`~torchrl.modules.EGreedyModule` with a choice of schedule.
+
+    The plain-DQN baseline: random exploring actions, annealed exactly as
+    :class:`ModelBasedExplorationPolicy` anneals, so that only the exploring
+    rule differs between the two. ``schedule="linear"`` is ``EGreedyModule``.
+
+    Examples:
+        >>> from torchrl.data import OneHot
+        >>> from torchrl_mbe.exploration import AnnealedEGreedyModule
+        >>> module = AnnealedEGreedyModule(OneHot(3), 1.0, 0.01, 9209, schedule="exponential")
+        >>> module.step(1); round(module.eps.item(), 4)
+        0.9995
+    """
+
+    def __init__(
+        self,
+        spec: TensorSpec,
+        eps_init: float = 1.0,
+        eps_end: float = 0.01,
+        annealing_num_steps: int = 10_000,
+        *,
+        schedule: Literal["linear", "exponential"] = "linear",
+        action_key: NestedKey = "action",
+    ) -> None:
+        _check_schedule(eps_init, eps_end, annealing_num_steps, schedule)
+        super().__init__(spec, float(eps_init), eps_end, int(annealing_num_steps), action_key=action_key)
+        self.schedule = schedule
+
+    def step(self, frames: int = 1) -> None:
+        """Anneals eps by ``frames`` steps of the schedule (no-op once at ``eps_end``)."""
+        anneal_eps(self, frames)
+
+
+def anneal_eps(module: torch.nn.Module, frames: int) -> None:
+    """Advances ``module.eps`` by ``frames`` steps of its linear or exponential schedule.
+
+    ``module`` has ``eps``/``eps_init``/``eps_end`` buffers and ``schedule`` and
+    ``annealing_num_steps`` attributes; eps never goes below ``eps_end``.
+    """
+    if module.schedule == "linear":
+        annealed = module.eps - frames * (module.eps_init - module.eps_end) / module.annealing_num_steps
+    else:
+        decay = (module.eps_end / module.eps_init) ** (1.0 / module.annealing_num_steps)
+        annealed = module.eps * decay**frames
+    module.eps.copy_(torch.maximum(module.eps_end, annealed).to(module.eps.dtype))
 
 
 def _check_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, schedule: str) -> None:

@@ -1,0 +1,31 @@
+"""Train DQN with model-based exploration: ``python train.py env=mountaincar exploration=gaussian``.
+
+A thin Hydra wrapper around :func:`torchrl_mbe.training.train`; the config lives in ``conf/``.
+Sweeps: ``python train.py -m exploration=gaussian,kernel,egreedy seed=0,1,2``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+
+import hydra
+from omegaconf import DictConfig
+
+from torchrl_mbe.config import ConfigError
+from torchrl_mbe.training import train
+
+log = logging.getLogger("train")
+
+
+@hydra.main(config_path="conf", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> float | None:
+    try:
+        summary = train(cfg)
+    except ConfigError as error:
+        raise SystemExit(f"Error: {error}") from None
+    log.info("Summary:\n%s", json.dumps(summary, indent=2))
+    return summary["final_eval_return"]
+
+
+if __name__ == "__main__":
+    main()
