@@ -6,6 +6,7 @@ import pytest
 import torch
 
 os.environ.setdefault("WANDB_MODE", "disabled")
+torch.set_num_threads(1)  # tiny networks: one thread is fastest and immune to a busy machine
 
 
 @pytest.fixture(autouse=True)
