@@ -10,6 +10,8 @@ from torch import nn
 from torchrl.data import Categorical, OneHot, ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
+from torchrl_mbe.normalization import Standardize
+
 __all__ = ["DynamicsModel", "action_indices", "num_discrete_actions", "one_hot_actions"]
 
 
@@ -38,11 +40,12 @@ def one_hot_actions(action: torch.Tensor, action_spec: TensorSpec) -> torch.Tens
 class DynamicsModel(TensorDictModuleBase):
     """An MLP that predicts the next observation from an observation and a discrete action.
 
-    As in mbrl-lib, the network predicts the normalized state *delta*
-    ``(s' - s - delta_loc) / delta_scale`` from the normalized observation and the
-    one-hot action, and adds it back to ``s``. The normalization statistics are
-    buffers (saved beside the weights in ``state_dict``), identity until
-    :meth:`fit_normalization` refits them from data or a replay buffer.
+    As in mbrl-lib, the network predicts the standardized state *delta*
+    ``s' - s`` from the standardized observation and the one-hot action, and the
+    delta is added back to ``s``. The statistics are buffers (saved beside the
+    weights in ``state_dict``), identity until :meth:`fit_normalization` refits
+    them from data or a replay buffer; refit before training, since a refit
+    changes what the network's outputs mean.
     Defaults follow the paper's appendix: two hidden layers of 24 ReLU units with
     Glorot-uniform weights.
 
@@ -102,14 +105,19 @@ class DynamicsModel(TensorDictModuleBase):
             if isinstance(layer, nn.Linear):
                 nn.init.xavier_uniform_(layer.weight)
                 nn.init.zeros_(layer.bias)
-        for name, value in (("observation_loc", 0.0), ("observation_scale", 1.0), ("delta_loc", 0.0), ("delta_scale", 1.0)):
-            self.register_buffer(name, torch.full((observation_size,), value, device=device))
+        self.observation_norm = Standardize(observation_size, device=device)
+        self.delta_norm = Standardize(observation_size, device=device)
+
+    @property
+    def delta_scale(self) -> torch.Tensor:
+        """Typical size of each dimension's change; :class:`DynamicsLoss` measures errors in these units."""
+        return self.delta_norm.scale
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
-        normalized = (observation - self.observation_loc) / self.observation_scale
+        normalized = self.observation_norm(observation)
         inputs = torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
-        return observation + self.delta_loc + self.delta_scale * self.net(inputs)
+        return observation + self.delta_norm.loc + self.delta_norm.scale * self.net(inputs)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation_key, action_key = self.in_keys
@@ -137,11 +145,6 @@ class DynamicsModel(TensorDictModuleBase):
         """
         if isinstance(data, ReplayBuffer):
             data = data[: len(data)]
-        observation = data.get(self.in_keys[0]).reshape(-1, self.observation_loc.numel())
-        delta = data.get(next_observation_key).reshape_as(observation) - observation
-        if observation.shape[0] < 2:
-            raise ValueError("fit_normalization needs at least two transitions.")
-        self.observation_loc.copy_(observation.mean(0))
-        self.observation_scale.copy_(observation.std(0).clamp_min(min_scale))
-        self.delta_loc.copy_(delta.mean(0))
-        self.delta_scale.copy_(delta.std(0).clamp_min(min_scale))
+        observation = data.get(self.in_keys[0])
+        self.observation_norm.fit(observation, min_scale)
+        self.delta_norm.fit(data.get(next_observation_key) - observation, min_scale)
