@@ -6,6 +6,7 @@ their optimizers. ``build_agent`` wires them together.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -25,7 +26,7 @@ from torchrl_mbe.objectives import DynamicsLoss
 from torchrl_mbe.oracle import MountainCarDynamics
 from torchrl_mbe.planner import NoveltyPlanner
 
-__all__ = ["Agent", "build_agent", "method_name", "PLANNING_EXPLORERS"]
+__all__ = ["Agent", "build_agent", "method_name", "make_per_action_mlp", "PLANNING_EXPLORERS"]
 
 PLANNING_EXPLORERS = ("gaussian", "kernel")
 """Exploration options that plan with a dynamics model; ``egreedy`` and ``none`` do not."""
@@ -43,6 +44,11 @@ class Agent:
     q_optimizer: torch.optim.Optimizer
     dynamics_loss: DynamicsLoss | None
     dynamics_optimizer: torch.optim.Optimizer | None
+
+    @property
+    def eps(self) -> float:
+        """The exploration rate now (0 without an explorer)."""
+        return float(self.explorer.eps) if self.explorer is not None else 0.0
 
     @property
     def dynamics(self) -> TensorDictModuleBase | None:
@@ -63,11 +69,14 @@ class Agent:
 
 
 def method_name(cfg: DictConfig) -> str:
-    """The name runs are grouped by in reports: ``dqn+gaussian``, ``explore:oracle``, ...
+    """The name runs are grouped by in reports: ``dqn+gaussian``, ``explore:oracle``, ``reinforce``, ...
 
     Runs that never update the Q-network (``algo.updates_per_frame=0``, the
-    exploration-only experiment) are named ``explore:<explorer>``.
+    exploration-only experiment) are named ``explore:<explorer>``. REINFORCE
+    explores by sampling its policy, so the exploration group does not apply to it.
     """
+    if cfg.algo.name == "reinforce":
+        return "reinforce"
     explorer = cfg.exploration.name
     if explorer in PLANNING_EXPLORERS and cfg.dynamics.name == "oracle":
         explorer = f"{explorer}-oracle" if explorer != "gaussian" else "oracle"
@@ -108,18 +117,38 @@ def build_agent(cfg: DictConfig, env: EnvBase) -> Agent:
 
 def make_q_actor(observation_size: int, action_spec: TensorSpec, num_cells, device: torch.device) -> QValueActor:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization)."""
+    network = make_per_action_mlp(
+        observation_size, action_spec, num_cells, nn.ReLU, nn.init.xavier_uniform_, nn.init.zeros_, device
+    )
+    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+
+
+def make_per_action_mlp(
+    observation_size: int,
+    action_spec: TensorSpec,
+    num_cells: Sequence[int],
+    activation_class: type[nn.Module],
+    init_weight: Callable[[torch.Tensor], torch.Tensor],
+    init_bias: Callable[[torch.Tensor], torch.Tensor],
+    device: torch.device | str = "cpu",
+) -> MLP:
+    """An ``MLP`` from observations to one output per discrete action.
+
+    Every layer's weights and biases start from ``init_weight`` and ``init_bias``
+    (``nn.init`` functions, e.g. ``partial(nn.init.normal_, std=0.3)``).
+    """
     network = MLP(
         in_features=observation_size,
         out_features=action_spec.space.n,
         num_cells=list(num_cells),
-        activation_class=nn.ReLU,
+        activation_class=activation_class,
         device=device,
     )
     for layer in network.modules():
         if isinstance(layer, nn.Linear):
-            nn.init.xavier_uniform_(layer.weight)
-            nn.init.zeros_(layer.bias)
-    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+            init_weight(layer.weight)
+            init_bias(layer.bias)
+    return network
 
 
 def make_dynamics(cfg: DictConfig, observation_size: int, action_spec: TensorSpec, device: torch.device):

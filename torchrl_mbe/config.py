@@ -25,6 +25,8 @@ _NON_NEGATIVE_NUMBERS = (
     "eval.final_episodes",
     "optim.q_lr",
     "optim.dynamics_lr",
+    "algo.lr",
+    "algo.weight_std",
 )
 _LAYER_LISTS = ("algo.num_cells", "dynamics.num_cells")
 
@@ -63,6 +65,8 @@ def check_config(cfg: DictConfig) -> None:
         if cells is not None and (len(cells) == 0 or any(not isinstance(c, int) or c < 1 for c in cells)):
             raise ConfigError(f"{key}={list(cells)}: expected a non-empty list of positive layer sizes.")
     num_envs, frames_per_batch = OmegaConf.select(cfg, "env.num_envs"), OmegaConf.select(cfg, "collector.frames_per_batch")
+    if OmegaConf.select(cfg, "algo.name") == "reinforce" and num_envs not in (None, 1):
+        raise ConfigError(f"env.num_envs={num_envs}: algo=reinforce plays one episode at a time; use env.num_envs=1.")
     if num_envs and frames_per_batch and frames_per_batch % num_envs:
         raise ConfigError(
             f"collector.frames_per_batch={frames_per_batch} must be a multiple of env.num_envs={num_envs}."

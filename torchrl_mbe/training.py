@@ -2,6 +2,9 @@
 
 ``train(cfg)`` takes a composed Hydra config (``conf/``) and returns a summary;
 ``train.py`` at the repository root is the thin ``@hydra.main`` wrapper.
+``algo=reinforce`` runs the paper's policy-gradient baseline instead
+(:func:`torchrl_mbe.reinforce.train_reinforce`), which reuses this module's
+logging, evaluation, checkpoint and interrupt handling.
 """
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -27,6 +31,9 @@ from torchrl_mbe.config import ConfigError, check_config, config_differences
 from torchrl_mbe.envs import SOLVED_THRESHOLDS, make_env, resolve_env_id
 from torchrl_mbe.episodes import finished_episodes, reached_goal
 from torchrl_mbe.run_logger import RunLogger
+
+if TYPE_CHECKING:
+    from torchrl_mbe.reinforce import ReinforceAgent
 
 __all__ = ["train", "evaluate", "CHECKPOINT_NAME"]
 
@@ -64,6 +71,10 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(cfg.seed)
+    if cfg.algo.name == "reinforce":
+        from torchrl_mbe.reinforce import train_reinforce  # here: reinforce builds on this module
+
+        return train_reinforce(cfg, run_dir)
     try:
         env_id = resolve_env_id(cfg.env.name)
         env = make_env(cfg.env.name, seed=cfg.seed, num_envs=cfg.env.num_envs, device=cfg.device)
@@ -82,29 +93,17 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
             buffer.extend(batch.reshape(-1))
             progress.frames += batch.numel()
             progress.wall_time_s = time.perf_counter() - started
-            record_episodes(batch, env_id, agent, progress, logger, bar)
+            record_episodes(batch, env_id, agent.eps, progress, logger, bar)
             if cfg.train.save_visited_states:
                 record_visited_states(batch, progress)
             check_dynamics_on_new_data(batch, agent, progress)
             train_on_new_frames(cfg, batch.numel(), agent, buffer, progress, logger)
-            if _crossed(progress.frames, batch.numel(), cfg.eval.every_frames) and cfg.eval.episodes:
-                log_evaluation(evaluate(agent.actor, eval_env, cfg.eval.episodes, env_id), progress, logger)
-            if _crossed(progress.frames, batch.numel(), cfg.train.checkpoint_every_frames):
-                save_checkpoint(run_dir, cfg, agent, buffer, progress)
+            evaluate_and_checkpoint_if_due(run_dir, cfg, env_id, eval_env, agent, buffer, progress, logger, batch.numel())
             if budget_spent(cfg, progress) or interrupt.requested:
                 break
     collector.shutdown()
     bar.close()
-    if interrupt.requested:
-        save_checkpoint(run_dir, cfg, agent, buffer, progress)
-        logger.close()
-        raise SystemExit(f"Interrupted at {progress.frames} frames; checkpoint saved in {run_dir}. Continue with resume=true.")
-    save_checkpoint(run_dir, cfg, agent, buffer, progress)
-    final = evaluate(agent.actor, eval_env, cfg.eval.final_episodes, env_id) if cfg.eval.final_episodes else None
-    if final is not None:
-        log_evaluation(final, progress, logger)
-    logger.close()
-    return write_summary(run_dir, cfg, env_id, progress, final)
+    return finish_run(run_dir, cfg, env_id, eval_env, agent, buffer, progress, logger, interrupted=interrupt.requested)
 
 
 class StopOnInterrupt:
@@ -143,8 +142,8 @@ def make_replay_buffer(buffer_cfg: DictConfig, device: str) -> ReplayBuffer:
     raise ValueError(f"buffer.name must be 'uniform' or 'prioritized', got {buffer_cfg.name!r}.")
 
 
-def start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, buffer: ReplayBuffer) -> Progress:
-    """Fresh counters, or the last checkpoint's state when ``cfg.resume`` is set."""
+def start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent | ReinforceAgent, buffer: ReplayBuffer | None) -> Progress:
+    """Fresh counters, or the last checkpoint's state when ``cfg.resume`` is set (``buffer=None``: no replay buffer)."""
     checkpoint_path = run_dir / CHECKPOINT_NAME
     if not cfg.resume:
         if checkpoint_path.exists():
@@ -165,15 +164,15 @@ def start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, buffer: Replay
             f"The checkpoint in {run_dir} was made with another config; differing keys: " + "; ".join(differences)
         )
     agent.load_state_dict(checkpoint["agent"])
-    buffer.load_state_dict(checkpoint["buffer"])
+    if buffer is not None:
+        buffer.load_state_dict(checkpoint["buffer"])
     torch.set_rng_state(checkpoint["torch_rng"])
     log.info("Resumed %s at %d frames, %d episodes", run_dir, checkpoint["progress"]["frames"], checkpoint["progress"]["episodes"])
     return Progress(**checkpoint["progress"])
 
 
-def record_episodes(batch: TensorDictBase, env_id: str, agent: Agent, progress: Progress, logger: RunLogger, bar) -> None:
-    """Logs every episode that ended in ``batch`` and advances the progress bar."""
-    eps = float(agent.explorer.eps) if agent.explorer is not None else 0.0
+def record_episodes(batch: TensorDictBase, env_id: str, eps: float, progress: Progress, logger: RunLogger, bar) -> None:
+    """Logs every episode that ended in ``batch`` (``eps``: the exploration rate that acted) and advances the progress bar."""
     for episode in finished_episodes(batch):
         progress.episodes += 1
         success = reached_goal(env_id, episode)
@@ -271,8 +270,7 @@ def evaluate(actor, env: EnvBase, episodes: int, env_id: str) -> dict:
     returns, successes = [], []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         for _ in range(episodes):
-            rollout = env.rollout(max_steps=100_000, policy=actor, break_when_any_done=True)
-            episode = finished_episodes(rollout)[-1]
+            episode = finished_episodes(play_episode(env, actor))[-1]
             returns.append(episode.episode_return)
             successes.append(reached_goal(env_id, episode))
     return {
@@ -280,6 +278,11 @@ def evaluate(actor, env: EnvBase, episodes: int, env_id: str) -> dict:
         "eval_return_std": float(np.std(returns)),
         "eval_success_rate": float(np.mean(successes)),
     }
+
+
+def play_episode(env: EnvBase, policy) -> TensorDictBase:
+    """One whole episode of ``policy`` in a single ``env``, shape ``(steps,)``, under the caller's exploration type."""
+    return env.rollout(max_steps=100_000, policy=policy, break_when_any_done=True)
 
 
 def log_evaluation(result: dict, progress: Progress, logger: RunLogger) -> None:
@@ -296,7 +299,7 @@ def log_updates(loss_q: float, agent: Agent, progress: Progress, logger: RunLogg
             "loss_q": loss_q,
             "loss_dynamics": progress.last_loss_dynamics,
             "dynamics_val_error": progress.dynamics_val_error,
-            "eps": float(agent.explorer.eps) if agent.explorer is not None else 0.0,
+            "eps": agent.eps,
             "frames_per_s": progress.frames / max(progress.wall_time_s, 1e-9),
         },
     )
@@ -307,18 +310,62 @@ def budget_spent(cfg: DictConfig, progress: Progress) -> bool:
     return progress.episodes >= cfg.train.episodes or (max_frames is not None and progress.frames >= max_frames)
 
 
-def save_checkpoint(run_dir: Path, cfg: DictConfig, agent: Agent, buffer: ReplayBuffer, progress: Progress) -> None:
+def save_checkpoint(
+    run_dir: Path, cfg: DictConfig, agent: Agent | ReinforceAgent, buffer: ReplayBuffer | None, progress: Progress
+) -> None:
     """Writes the checkpoint atomically (a crash mid-write keeps the previous one)."""
     checkpoint = {
         "config": OmegaConf.to_container(cfg, resolve=True),
         "agent": agent.state_dict(),
-        "buffer": buffer.state_dict(),
+        "buffer": buffer.state_dict() if buffer is not None else None,
         "progress": asdict(progress),
         "torch_rng": torch.get_rng_state(),
     }
     partial = run_dir / (CHECKPOINT_NAME + ".partial")
     torch.save(checkpoint, partial)
     partial.replace(run_dir / CHECKPOINT_NAME)
+
+
+def evaluate_and_checkpoint_if_due(
+    run_dir: Path,
+    cfg: DictConfig,
+    env_id: str,
+    eval_env: EnvBase,
+    agent: Agent | ReinforceAgent,
+    buffer: ReplayBuffer | None,
+    progress: Progress,
+    logger: RunLogger,
+    new_frames: int,
+) -> None:
+    """The periodic greedy evaluation and checkpoint, when the last ``new_frames`` frames crossed their period."""
+    if _crossed(progress.frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
+        log_evaluation(evaluate(agent.actor, eval_env, cfg.eval.episodes, env_id), progress, logger)
+    if _crossed(progress.frames, new_frames, cfg.train.checkpoint_every_frames):
+        save_checkpoint(run_dir, cfg, agent, buffer, progress)
+
+
+def finish_run(
+    run_dir: Path,
+    cfg: DictConfig,
+    env_id: str,
+    eval_env: EnvBase,
+    agent: Agent | ReinforceAgent,
+    buffer: ReplayBuffer | None,
+    progress: Progress,
+    logger: RunLogger,
+    *,
+    interrupted: bool,
+) -> dict:
+    """Saves the last checkpoint; unless ``interrupted`` (then it exits), evaluates greedily and writes the summary."""
+    save_checkpoint(run_dir, cfg, agent, buffer, progress)
+    if interrupted:
+        logger.close()
+        raise SystemExit(f"Interrupted at {progress.frames} frames; checkpoint saved in {run_dir}. Continue with resume=true.")
+    final = evaluate(agent.actor, eval_env, cfg.eval.final_episodes, env_id) if cfg.eval.final_episodes else None
+    if final is not None:
+        log_evaluation(final, progress, logger)
+    logger.close()
+    return write_summary(run_dir, cfg, env_id, progress, final)
 
 
 def write_summary(run_dir: Path, cfg: DictConfig, env_id: str, progress: Progress, final: dict | None) -> dict:
