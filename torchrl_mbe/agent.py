@@ -23,6 +23,7 @@ from torchrl_mbe.dynamics import DynamicsModel
 from torchrl_mbe.envs import resolve_env_id
 from torchrl_mbe.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.normalization import Standardize
 from torchrl_mbe.oracle import MountainCarDynamics
 from torchrl_mbe.planner import NoveltyPlanner
 
@@ -37,6 +38,7 @@ class Agent:
     """Everything a DQN run trains, saves and restores."""
 
     actor: QValueActor
+    q_input_norm: Standardize | None  # fitted on the replay buffer before the first Q update
     policy: TensorDictModuleBase
     explorer: TensorDictModuleBase | None  # holds eps; its step() anneals it
     q_loss: DQNLoss
@@ -90,7 +92,9 @@ def build_agent(cfg: DictConfig, env: EnvBase) -> Agent:
     device = torch.device(cfg.device)
     action_spec = env.action_spec_unbatched.to(device)
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
-    actor = make_q_actor(observation_size, action_spec, cfg.algo.num_cells, device)
+    actor, q_input_norm = make_q_actor(
+        observation_size, action_spec, cfg.algo.num_cells, device, standardize_inputs=cfg.algo.standardize_inputs
+    )
     dynamics = make_dynamics(cfg, observation_size, action_spec, device)
     policy, explorer = make_exploration_policy(cfg, actor, dynamics, action_spec, observation_size, env.batch_size)
     q_loss = DQNLoss(
@@ -105,6 +109,7 @@ def build_agent(cfg: DictConfig, env: EnvBase) -> Agent:
     dynamics_loss = DynamicsLoss(dynamics) if dynamics is not None else None
     return Agent(
         actor=actor,
+        q_input_norm=q_input_norm,
         policy=policy,
         explorer=explorer,
         q_loss=q_loss,
@@ -115,12 +120,21 @@ def build_agent(cfg: DictConfig, env: EnvBase) -> Agent:
     )
 
 
-def make_q_actor(observation_size: int, action_spec: TensorSpec, num_cells, device: torch.device) -> QValueActor:
-    """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization)."""
+def make_q_actor(
+    observation_size: int, action_spec: TensorSpec, num_cells, device: torch.device, *, standardize_inputs: bool
+) -> tuple[QValueActor, Standardize | None]:
+    """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
+
+    With ``standardize_inputs`` the MLP reads standardized observations; the
+    returned :class:`Standardize` is identity until the training loop fits it.
+    """
     network = make_per_action_mlp(
         observation_size, action_spec, num_cells, nn.ReLU, nn.init.xavier_uniform_, nn.init.zeros_, device
     )
-    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+    if not standardize_inputs:
+        return QValueActor(network, spec=action_spec, in_keys=["observation"]), None
+    standardize = Standardize(observation_size, device=device)
+    return QValueActor(nn.Sequential(standardize, network), spec=action_spec, in_keys=["observation"]), standardize
 
 
 def make_per_action_mlp(

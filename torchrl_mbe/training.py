@@ -231,11 +231,24 @@ def train_on_new_frames(cfg: DictConfig, new_frames: int, agent: Agent, buffer: 
         agent.explorer.step(min(new_frames, progress.frames - cfg.algo.learning_starts))
     progress.q_update_credit += new_frames * cfg.algo.updates_per_frame
     while progress.q_update_credit >= 1:
+        if progress.q_updates == 0 and agent.q_input_norm is not None:
+            fit_q_input_norm(agent, buffer)
         loss_q = update_q(agent, buffer, cfg.algo.batch_size, cfg.algo.max_grad_norm)
         progress.q_updates += 1
         progress.q_update_credit -= 1
         if cfg.logger.log_every_updates and progress.q_updates % cfg.logger.log_every_updates == 0:
             log_updates(loss_q, agent, progress, logger)
+
+
+@torch.no_grad()
+def fit_q_input_norm(agent: Agent, buffer: ReplayBuffer) -> None:
+    """Fits the Q-network's input statistics once, on what the buffer holds, and gives them to the target network.
+
+    Target updaters copy parameters, not buffers; the statistics never change
+    after this fit, so copying them here keeps both networks consistent.
+    """
+    agent.q_input_norm.fit(buffer[: len(buffer)]["observation"])
+    agent.q_loss.target_value_network_params.update_(agent.q_loss.value_network_params)
 
 
 def update_q(agent: Agent, buffer: ReplayBuffer, batch_size: int, max_grad_norm: float | None) -> float:
