@@ -10,7 +10,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.data import TensorSpec
@@ -85,6 +85,10 @@ def method_name(cfg: DictConfig) -> str:
     if cfg.algo.name == "dqn" and cfg.algo.updates_per_frame == 0:
         return "explore:" + ("random" if explorer == "egreedy" else explorer)
     return f"{cfg.algo.name}+{explorer}"
+
+
+if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
+    OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
 
 
 def build_agent(cfg: DictConfig, env: EnvBase) -> Agent:
