@@ -41,7 +41,7 @@ def read_table(run_dir: Path, table: str) -> list[dict]:
 @pytest.mark.parametrize("exploration", ["gaussian", "kernel", "egreedy", "none"])
 def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration):
     summary = train(compose_config(f"exploration={exploration}"), tmp_path)
-    assert summary["frames"] >= 300 and summary["q_updates"] >= 200
+    assert summary["frames"] >= 300 and summary["q_updates"] >= 50  # 0.25 updates per frame after 100
     assert summary["method"] == f"dqn+{exploration}"
     assert (summary["dynamics_updates"] > 0) == (exploration in ("gaussian", "kernel"))
     episodes = read_table(tmp_path, "episodes")
