@@ -6,7 +6,6 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
 from torchrl.envs import EnvBase
 
-from torchrl_mbe.dynamics import action_indices
 from torchrl_mbe.oracle import MOUNTAINCAR, mountaincar_step
 
 __all__ = ["BatchedMountainCarEnv"]
@@ -86,6 +85,8 @@ class BatchedMountainCarEnv(EnvBase):
         self.register_buffer(
             "elapsed_steps", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False
         )
+        goal = torch.tensor([MOUNTAINCAR["goal_position"], 0.0], dtype=torch.float64, device=self.device)
+        self.register_buffer("goal_state", goal, persistent=False)
         self._generator = torch.Generator()
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_())
@@ -131,11 +132,10 @@ class BatchedMountainCarEnv(EnvBase):
         return self._output(not_done, not_done.clone())
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = action_indices(tensordict.get(self.action_key), self.action_spec)
+        action = tensordict.get("action").argmax(-1)
         self.physical_state.copy_(mountaincar_step(self.physical_state, action))
         self.elapsed_steps.add_(1)
-        position, velocity = self.physical_state.unsqueeze(-1).unbind(-2)
-        terminated = (position >= MOUNTAINCAR["goal_position"]) & (velocity >= 0)
+        terminated = (self.physical_state >= self.goal_state).all(-1, keepdim=True)  # at the flag, not rolling back
         truncated = (self.elapsed_steps >= self.max_episode_steps).unsqueeze(-1)
         output = self._output(terminated, truncated)
         output.set("reward", torch.full((*self.batch_size, 1), -1.0, device=self.device))
