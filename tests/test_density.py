@@ -106,3 +106,52 @@ def test_kernel_novelty_is_minus_the_kernel_sum():
     expected = -torch.exp(-0.5 * ((query - window) / 0.5).square().sum(-1)).sum()
     torch.testing.assert_close(novelty.score(query), expected.reshape(1))
     assert novelty.score(torch.tensor([5.0, 5.0])) > novelty.score(torch.tensor([0.0, 0.0]))
+
+
+def test_scores_do_not_depend_on_which_updates_were_scored():
+    visits = correlated_states(120).split(7)
+    queries = correlated_states(9) * 1.5
+    every_update_scored, never_scored = RollingGaussianDensity(3, window=50), RollingGaussianDensity(3, window=50)
+    for chunk in visits:
+        every_update_scored.update(chunk)
+        every_update_scored.score(queries)
+        never_scored.update(chunk)
+    assert torch.equal(never_scored.score(queries), every_update_scored.score(queries))
+    assert torch.equal(never_scored.covariance_matrix, every_update_scored.covariance_matrix)
+
+
+def test_the_gaussian_is_fitted_once_per_window_change_at_the_first_score(monkeypatch):
+    density = RollingGaussianDensity(2, window=10)
+    fits = []
+    original_refit = density._refit
+    monkeypatch.setattr(density, "_refit", lambda: fits.append(1) or original_refit())
+    for _ in range(5):
+        density.update(torch.randn(2))
+    assert not fits
+    density.score(torch.randn(3, 2))
+    density.score(torch.randn(3, 2))
+    assert len(fits) == 1
+
+
+@pytest.mark.parametrize("scored_before_saving", [True, False], ids=["fitted", "stale"])
+def test_a_loaded_state_dict_scores_the_same(scored_before_saving):
+    density = RollingGaussianDensity(3, window=20)
+    density.update(correlated_states(30))
+    queries = correlated_states(7) * 1.5
+    if scored_before_saving:
+        density.score(queries)
+    restored = RollingGaussianDensity(3, window=20)
+    restored.update(correlated_states(5))
+    restored.score(queries)  # a fit of another window, which loading must replace
+    restored.load_state_dict(density.state_dict())
+    assert torch.equal(restored.score(queries), density.score(queries))
+
+
+def test_a_state_dict_without_the_fit_flag_still_loads_and_refits():
+    density = RollingGaussianDensity(3, window=20)
+    density.update(correlated_states(30))
+    state = {key: value for key, value in density.state_dict().items() if key != "fit_stale"}
+    restored = RollingGaussianDensity(3, window=20)
+    restored.load_state_dict(state)
+    queries = correlated_states(7)
+    assert torch.equal(restored.score(queries), density.score(queries))

@@ -23,10 +23,15 @@ __all__ = ["RollingWindowNovelty", "RollingGaussianDensity", "GaussianKernelNove
 class RollingWindowNovelty(nn.Module):
     """Base class: a circular buffer of the last ``window`` visited states.
 
-    Subclasses implement :meth:`score` and may override :meth:`_refit`, which
-    runs once after every :meth:`update` so that scoring reuses its result.
-    The window, its write counter and anything ``_refit`` caches are buffers:
-    they travel with ``state_dict``, ``.to(device)`` and collector weight sync.
+    Subclasses implement :meth:`score`. One that fits something to the window
+    (a mean, a factorized covariance) overrides :meth:`_refit` and calls
+    :meth:`_refit_if_stale` before reading the fit: :meth:`update` and
+    :meth:`reset` only write the window and mark the fit stale, so the fit runs
+    once per window change, at the first score after it, and steps that update
+    the window without scoring (greedy steps of an epsilon-greedy policy) cost
+    no fit. The window, its write counter, the ``fit_stale`` flag and anything
+    ``_refit`` caches are buffers: they travel together with ``state_dict``,
+    ``.to(device)`` and collector weight sync.
 
     Args:
         num_features (int): size of a state vector.
@@ -61,6 +66,7 @@ class RollingWindowNovelty(nn.Module):
             "states", torch.zeros(*self.batch_shape, self.window, self.num_features, device=device)
         )
         self.register_buffer("num_seen", torch.zeros((), dtype=torch.int64, device=device))
+        self.register_buffer("fit_stale", torch.ones((), dtype=torch.bool, device=device))
 
     @property
     def num_stored(self) -> int:
@@ -87,19 +93,25 @@ class RollingWindowNovelty(nn.Module):
         slots = torch.arange(seen, seen + states.shape[0], device=self.states.device) % self.window
         self.states[..., slots, :] = states.movedim(0, -2)
         self.num_seen.add_(states.shape[0])
-        self._refit()
+        self.fit_stale.fill_(True)
 
     def reset(self) -> None:
         """Empties the window."""
         self.num_seen.zero_()
-        self._refit()
+        self.fit_stale.fill_(True)
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """Novelty of each state, shape ``states.shape[:-1]``; higher = rarer."""
         raise NotImplementedError
 
+    def _refit_if_stale(self) -> None:
+        """Runs :meth:`_refit` if the window changed since the last fit."""
+        if self.fit_stale:
+            self._refit()
+            self.fit_stale.fill_(False)
+
     def _refit(self) -> None:
-        """Recomputes whatever :meth:`score` reuses; called after each update."""
+        """Recomputes what :meth:`score` reuses from the window (nothing here); see :meth:`_refit_if_stale`."""
 
     def _check_shape(self, states: torch.Tensor) -> torch.Tensor:
         trailing = (*self.batch_shape, self.num_features)
@@ -110,9 +122,10 @@ class RollingWindowNovelty(nn.Module):
             )
         return states
 
-    def _load_from_state_dict(self, *args, **kwargs) -> None:
-        super()._load_from_state_dict(*args, **kwargs)
-        self._refit()
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
+        # Checkpoints written before the fit became lazy have no flag: refit at the first score.
+        state_dict.setdefault(prefix + "fit_stale", torch.ones((), dtype=torch.bool))
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def extra_repr(self) -> str:
         return f"num_features={self.num_features}, window={self.window}, batch_shape={tuple(self.batch_shape)}"
@@ -139,8 +152,9 @@ class RollingGaussianDensity(RollingWindowNovelty):
       subspace scores as very rare instead of infinitely rare.
 
     The factorization (float64 ``eigh`` of a ``num_features``-square matrix) is
-    computed once per :meth:`update` and cached as a whitening matrix, so scoring
-    every candidate action of a step costs one matrix product.
+    computed once per window change, at the first score after it, and cached as
+    a whitening matrix: scoring every candidate action of a step costs one
+    matrix product, and window updates that are never scored cost no fit.
 
     Args:
         num_features (int): size of a state vector.
@@ -189,6 +203,7 @@ class RollingGaussianDensity(RollingWindowNovelty):
     @property
     def covariance_matrix(self) -> torch.Tensor:
         """The regularized covariance the density uses, ``(*batch_shape, D, D)``."""
+        self._refit_if_stale()
         inverse = torch.linalg.inv(self.whitening)
         return (inverse @ inverse.mT).to(self.states.dtype)
 
@@ -197,6 +212,7 @@ class RollingGaussianDensity(RollingWindowNovelty):
         states = self._check_shape(states)
         if self.num_stored == 0:
             return states.new_zeros(states.shape[:-1])
+        self._refit_if_stale()
         centered = states.to(self.loc) - self.loc
         whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
         mahalanobis = whitened.square().sum(-1)
@@ -207,7 +223,8 @@ class RollingGaussianDensity(RollingWindowNovelty):
         return -self.log_prob(states)
 
     def _refit(self) -> None:
-        stored = self.window_states().to(torch.float64)
+        """Mean, whitening matrix and normalizer of the window; slot order is fine, the fit ignores order."""
+        stored = self.states[..., : self.num_stored, :].to(torch.float64)
         if stored.shape[-2] == 0:
             return
         loc = stored.mean(-2)
