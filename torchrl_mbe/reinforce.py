@@ -51,19 +51,16 @@ from torchrl.objectives.value.functional import reward2go
 from tqdm.auto import tqdm
 
 from torchrl_mbe.agent import make_per_action_mlp
-from torchrl_mbe.config import ConfigError
-from torchrl_mbe.envs import make_env, resolve_env_id
-from torchrl_mbe.run_logger import RunLogger
 from torchrl_mbe.training import (
     StopOnInterrupt,
     budget_spent,
     evaluate_and_checkpoint_if_due,
     finish_run,
+    open_run,
     optimizer_step,
     play_episode,
     record_episodes,
     record_visited_states,
-    start_or_resume,
 )
 
 __all__ = ["ReinforceAgent", "build_reinforce_agent", "make_policy_actor", "write_advantage", "update_policy", "train_reinforce"]
@@ -186,27 +183,20 @@ def update_policy(agent: ReinforceAgent, episode: TensorDictBase) -> None:
 
 def train_reinforce(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains REINFORCE, one update per episode, and returns the run's summary (see :func:`~torchrl_mbe.training.train`)."""
-    try:
-        env_id = resolve_env_id(cfg.env.name)
-        env = make_env(cfg.env.name, seed=cfg.seed, device=cfg.device)
-        eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
-        agent = build_reinforce_agent(cfg, env)
-    except (ValueError, TypeError) as error:
-        raise ConfigError(str(error)) from error
-    progress = start_or_resume(cfg, run_dir, agent, None)
-    logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
+    run = open_run(cfg, run_dir, build_reinforce_agent, replay_buffer=False)
+    agent, progress = run.agent, run.progress
     bar = tqdm(total=cfg.train.episodes, initial=progress.episodes, unit="ep", disable=not cfg.progress_bar)
     started = time.perf_counter() - progress.wall_time_s
     with StopOnInterrupt() as interrupt:
         while not (budget_spent(cfg, progress) or interrupt.requested):
             with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
-                episode = play_episode(env, agent.actor)
+                episode = play_episode(run.env, agent.actor)
             progress.frames += episode.numel()
             progress.wall_time_s = time.perf_counter() - started
-            record_episodes(episode, env_id, 0.0, progress, logger, bar)
+            record_episodes(episode, run.env_id, 0.0, progress, run.logger, bar)
             if cfg.train.save_visited_states:
                 record_visited_states(episode, progress)
             update_policy(agent, episode)
-            evaluate_and_checkpoint_if_due(run_dir, cfg, env_id, eval_env, agent, None, progress, logger, episode.numel())
+            evaluate_and_checkpoint_if_due(run, episode.numel())
     bar.close()
-    return finish_run(run_dir, cfg, env_id, eval_env, agent, None, progress, logger, interrupted=interrupt.requested)
+    return finish_run(run, interrupted=interrupt.requested)

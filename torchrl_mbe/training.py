@@ -58,8 +58,41 @@ class Progress:
     visited: list = field(default_factory=list)  # (observations, episode ids) per batch, if recorded
 
 
+@dataclass
+class Run:
+    """One training run's parts: its config, environments, agent, memory, counters and logs."""
+
+    cfg: DictConfig
+    run_dir: Path
+    env_id: str
+    env: EnvBase
+    eval_env: EnvBase
+    agent: Agent | ReinforceAgent
+    buffer: ReplayBuffer | None
+    progress: Progress
+    logger: RunLogger
+
+
+def open_run(cfg: DictConfig, run_dir: Path, build, *, replay_buffer: bool) -> Run:
+    """Builds the environments and ``build(cfg, env)``'s agent, then starts or resumes the run.
+
+    Any value the parts reject becomes a :class:`~torchrl_mbe.config.ConfigError`.
+    """
+    try:
+        env_id = resolve_env_id(cfg.env.name)
+        env = make_env(cfg.env.name, seed=cfg.seed, num_envs=cfg.env.num_envs, device=cfg.device)
+        eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
+        agent = build(cfg, env)
+        buffer = make_replay_buffer(cfg.buffer, cfg.device) if replay_buffer else None
+    except (ValueError, TypeError) as error:
+        raise ConfigError(str(error)) from error
+    progress = start_or_resume(cfg, run_dir, agent, buffer)
+    logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
+    return Run(cfg, run_dir, env_id, env, eval_env, agent, buffer, progress, logger)
+
+
 def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
-    """Trains DQN with the configured exploration and returns the run's summary.
+    """Trains DQN (or, with ``algo=reinforce``, REINFORCE) and returns the run's summary.
 
     Args:
         cfg (DictConfig): a config composed from ``conf/`` (see ``docs/usage.md``).
@@ -75,17 +108,9 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         from torchrl_mbe.reinforce import train_reinforce  # here: reinforce builds on this module
 
         return train_reinforce(cfg, run_dir)
-    try:
-        env_id = resolve_env_id(cfg.env.name)
-        env = make_env(cfg.env.name, seed=cfg.seed, num_envs=cfg.env.num_envs, device=cfg.device)
-        eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
-        agent = build_agent(cfg, env)
-        buffer = make_replay_buffer(cfg.buffer, cfg.device)
-    except (ValueError, TypeError) as error:
-        raise ConfigError(str(error)) from error
-    progress = start_or_resume(cfg, run_dir, agent, buffer)
-    logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
-    collector = Collector(env, agent.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
+    run = open_run(cfg, run_dir, build_agent, replay_buffer=True)
+    agent, buffer, progress = run.agent, run.buffer, run.progress
+    collector = Collector(run.env, agent.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
     bar = tqdm(total=cfg.train.episodes, initial=progress.episodes, unit="ep", disable=not cfg.progress_bar)
     started = time.perf_counter() - progress.wall_time_s
     with StopOnInterrupt() as interrupt:
@@ -93,17 +118,17 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
             buffer.extend(batch.reshape(-1))
             progress.frames += batch.numel()
             progress.wall_time_s = time.perf_counter() - started
-            record_episodes(batch, env_id, agent.eps, progress, logger, bar)
+            record_episodes(batch, run.env_id, agent.eps, progress, run.logger, bar)
             if cfg.train.save_visited_states:
                 record_visited_states(batch, progress)
             check_dynamics_on_new_data(batch, agent, progress)
-            train_on_new_frames(cfg, batch.numel(), agent, buffer, progress, logger)
-            evaluate_and_checkpoint_if_due(run_dir, cfg, env_id, eval_env, agent, buffer, progress, logger, batch.numel())
+            train_on_new_frames(cfg, batch.numel(), agent, buffer, progress, run.logger)
+            evaluate_and_checkpoint_if_due(run, batch.numel())
             if budget_spent(cfg, progress) or interrupt.requested:
                 break
     collector.shutdown()
     bar.close()
-    return finish_run(run_dir, cfg, env_id, eval_env, agent, buffer, progress, logger, interrupted=interrupt.requested)
+    return finish_run(run, interrupted=interrupt.requested)
 
 
 class StopOnInterrupt:
@@ -323,62 +348,43 @@ def budget_spent(cfg: DictConfig, progress: Progress) -> bool:
     return progress.episodes >= cfg.train.episodes or (max_frames is not None and progress.frames >= max_frames)
 
 
-def save_checkpoint(
-    run_dir: Path, cfg: DictConfig, agent: Agent | ReinforceAgent, buffer: ReplayBuffer | None, progress: Progress
-) -> None:
+def save_checkpoint(run: Run) -> None:
     """Writes the checkpoint atomically (a crash mid-write keeps the previous one)."""
     checkpoint = {
-        "config": OmegaConf.to_container(cfg, resolve=True),
-        "agent": agent.state_dict(),
-        "buffer": buffer.state_dict() if buffer is not None else None,
-        "progress": asdict(progress),
+        "config": OmegaConf.to_container(run.cfg, resolve=True),
+        "agent": run.agent.state_dict(),
+        "buffer": run.buffer.state_dict() if run.buffer is not None else None,
+        "progress": asdict(run.progress),
         "torch_rng": torch.get_rng_state(),
     }
-    partial = run_dir / (CHECKPOINT_NAME + ".partial")
+    partial = run.run_dir / (CHECKPOINT_NAME + ".partial")
     torch.save(checkpoint, partial)
-    partial.replace(run_dir / CHECKPOINT_NAME)
+    partial.replace(run.run_dir / CHECKPOINT_NAME)
 
 
-def evaluate_and_checkpoint_if_due(
-    run_dir: Path,
-    cfg: DictConfig,
-    env_id: str,
-    eval_env: EnvBase,
-    agent: Agent | ReinforceAgent,
-    buffer: ReplayBuffer | None,
-    progress: Progress,
-    logger: RunLogger,
-    new_frames: int,
-) -> None:
+def evaluate_and_checkpoint_if_due(run: Run, new_frames: int) -> None:
     """The periodic greedy evaluation and checkpoint, when the last ``new_frames`` frames crossed their period."""
-    if _crossed(progress.frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
-        log_evaluation(evaluate(agent.actor, eval_env, cfg.eval.episodes, env_id), progress, logger)
-    if _crossed(progress.frames, new_frames, cfg.train.checkpoint_every_frames):
-        save_checkpoint(run_dir, cfg, agent, buffer, progress)
+    frames, cfg = run.progress.frames, run.cfg
+    if _crossed(frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
+        log_evaluation(evaluate(run.agent.actor, run.eval_env, cfg.eval.episodes, run.env_id), run.progress, run.logger)
+    if _crossed(frames, new_frames, cfg.train.checkpoint_every_frames):
+        save_checkpoint(run)
 
 
-def finish_run(
-    run_dir: Path,
-    cfg: DictConfig,
-    env_id: str,
-    eval_env: EnvBase,
-    agent: Agent | ReinforceAgent,
-    buffer: ReplayBuffer | None,
-    progress: Progress,
-    logger: RunLogger,
-    *,
-    interrupted: bool,
-) -> dict:
+def finish_run(run: Run, *, interrupted: bool) -> dict:
     """Saves the last checkpoint; unless ``interrupted`` (then it exits), evaluates greedily and writes the summary."""
-    save_checkpoint(run_dir, cfg, agent, buffer, progress)
+    save_checkpoint(run)
     if interrupted:
-        logger.close()
-        raise SystemExit(f"Interrupted at {progress.frames} frames; checkpoint saved in {run_dir}. Continue with resume=true.")
-    final = evaluate(agent.actor, eval_env, cfg.eval.final_episodes, env_id) if cfg.eval.final_episodes else None
+        run.logger.close()
+        raise SystemExit(
+            f"Interrupted at {run.progress.frames} frames; checkpoint saved in {run.run_dir}. Continue with resume=true."
+        )
+    episodes = run.cfg.eval.final_episodes
+    final = evaluate(run.agent.actor, run.eval_env, episodes, run.env_id) if episodes else None
     if final is not None:
-        log_evaluation(final, progress, logger)
-    logger.close()
-    return write_summary(run_dir, cfg, env_id, progress, final)
+        log_evaluation(final, run.progress, run.logger)
+    run.logger.close()
+    return write_summary(run.run_dir, run.cfg, run.env_id, run.progress, final)
 
 
 def write_summary(run_dir: Path, cfg: DictConfig, env_id: str, progress: Progress, final: dict | None) -> dict:
