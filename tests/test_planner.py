@@ -86,16 +86,19 @@ class FirstActionDynamics(ShiftDynamics):
 
 def test_long_horizons_use_a_bounded_random_search_covering_every_first_action():
     planner = NoveltyPlanner(FirstActionDynamics(SHIFTS), fitted(RollingGaussianDensity), OneHot(3), horizon=10, max_sequences=64)
-    sequences = planner._action_sequences(torch.device("cpu"))
+    sequences = planner._action_sequences()
     assert sequences.shape == (63, 10)
     assert torch.equal(torch.bincount(sequences[:, 0]), torch.tensor([21, 21, 21]))
+    assert not torch.equal(planner._action_sequences(), sequences)  # drawn afresh at each call
     td = planner(TensorDict({"observation": torch.zeros(5, 2)}, [5]))
     assert (td["action"].long().argmax(-1) == 2).all()  # only the first action decides where it ends
 
 
 def test_exhaustive_sequences_start_with_action_index_modulo_num_actions():
     planner = NoveltyPlanner(ShiftDynamics(SHIFTS), fitted(RollingGaussianDensity), OneHot(3), horizon=3)
-    sequences = planner._action_sequences(torch.device("cpu"))
+    sequences = planner._action_sequences()
     assert sequences.shape == (27, 3)
     assert len({tuple(row) for row in sequences.tolist()}) == 27
     assert torch.equal(sequences[:, 0], torch.arange(27) % 3)
+    assert planner._action_sequences() is sequences  # enumerated once
+    assert not any("sequences" in key for key in planner.state_dict())  # checkpoints unchanged

@@ -34,8 +34,9 @@ class NoveltyPlanner(TensorDictModuleBase):
     model ``horizon`` steps forward for action *sequences* and scores the final
     predicted state; an action's score is the best score of the sequences that start
     with it. All ``num_actions ** horizon`` sequences are searched while that is at
-    most ``max_sequences``; beyond, ``max_sequences`` random sequences are drawn at
-    each call, every first action equally often (random shooting).
+    most ``max_sequences`` (they are enumerated once, at construction); beyond,
+    ``max_sequences`` random sequences are drawn at each call, every first action
+    equally often (random shooting).
 
     Args:
         dynamics (TensorDictModuleBase): reads ``(observation, action)`` (its
@@ -89,6 +90,12 @@ class NoveltyPlanner(TensorDictModuleBase):
         else:
             candidates = torch.arange(self.num_actions, dtype=action_spec.dtype)
         self.register_buffer("candidate_actions", candidates.to(action_spec.device), persistent=False)
+        if self.num_actions**self.horizon <= self.max_sequences:
+            actions = torch.arange(self.num_actions, device=action_spec.device)
+            sequences = torch.cartesian_prod(*[actions] * self.horizon).reshape(-1, self.horizon).flip(-1)
+        else:
+            sequences = None  # random shooting: drawn at each call
+        self.register_buffer("exhaustive_sequences", sequences, persistent=False)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         scores = self.action_scores(tensordict.get(self.in_keys[0]))
@@ -100,21 +107,20 @@ class NoveltyPlanner(TensorDictModuleBase):
     @torch.no_grad()
     def action_scores(self, observation: torch.Tensor) -> torch.Tensor:
         """Novelty score of each first action, shape ``(*batch, num_actions)``."""
-        sequences = self._action_sequences(observation.device)
+        sequences = self._action_sequences()
         final_states = self._rollout(observation, sequences)
         sequence_scores = self.novelty.score(final_states)
         best_per_first_action = sequence_scores.unflatten(0, (-1, self.num_actions)).amax(0)
         return best_per_first_action.movedim(0, -1)
 
-    def _action_sequences(self, device: torch.device) -> torch.Tensor:
+    def _action_sequences(self) -> torch.Tensor:
         """Action indices, shape ``(num_sequences, horizon)``; sequence ``i`` starts with action ``i % num_actions``."""
-        num_actions, horizon = self.num_actions, self.horizon
-        if num_actions**horizon <= self.max_sequences:
-            actions = torch.arange(num_actions, device=device)
-            return torch.cartesian_prod(*[actions] * horizon).reshape(-1, horizon).flip(-1)
+        if self.exhaustive_sequences is not None:
+            return self.exhaustive_sequences
+        num_actions, device = self.num_actions, self.candidate_actions.device
         num_sequences = self.max_sequences - self.max_sequences % num_actions
         first = torch.arange(num_sequences, device=device) % num_actions
-        rest = torch.randint(num_actions, (num_sequences, horizon - 1), device=device)
+        rest = torch.randint(num_actions, (num_sequences, self.horizon - 1), device=device)
         return torch.cat([first.unsqueeze(-1), rest], -1)
 
     def _rollout(self, observation: torch.Tensor, sequences: torch.Tensor) -> torch.Tensor:
