@@ -1,18 +1,17 @@
-"""Throughput of MountainCar stepping, the exploration step and batched collection.
+"""Throughput of MountainCar stepping, the exploration step, batched collection and the training loop.
 
-    python bench/throughput.py                 # full run, a few minutes on 2 cores
-    python bench/throughput.py --quick         # smoke run, seconds
+    python bench/throughput.py                 # full run, ~15 minutes on 2 cores
+    python bench/throughput.py --quick         # smoke run, about a minute
     python bench/throughput.py --out my.json   # JSON elsewhere than bench/results/
-    python bench/throughput.py --threads 1     # torch.set_num_threads(1) first
+    python bench/throughput.py --threads 2     # torch intra-op threads (default 1, as the app)
+    python bench/throughput.py --only training breakdown   # some sections only
 
 Every figure is the median over ``repeats`` timed blocks (``time.perf_counter``)
 after untimed warm-up calls; variants that are compared are timed in
 alternating blocks, so load changes during the run hit them alike. A benchmark, not a test: it prints a table and
 writes JSON (machine, versions, figures); it asserts nothing.
 
-Each section is a function ``(Budget) -> list[Measurement]`` listed in
-:data:`SECTIONS`; a new figure (e.g. full training-loop frames/s of
-``torchrl_mbe.training.train``) is one more such function.
+Each section is a function ``(Budget) -> list[Measurement]`` named in :data:`SECTIONS`.
 """
 from __future__ import annotations
 
@@ -24,6 +23,8 @@ import json
 import os
 import platform
 import statistics
+import subprocess
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
@@ -34,6 +35,8 @@ import numpy as np
 import tensordict
 import torch
 import torchrl
+from hydra import compose, initialize_config_dir
+from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
@@ -42,9 +45,26 @@ from torchrl.data import OneHot
 from torchrl.envs import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
+import torchrl_mbe
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
+from torchrl_mbe.agent import build_agent
+from torchrl_mbe.training import Progress, check_dynamics_on_new_data, make_replay_buffer, train, update_dynamics, update_q
 
 RESULTS_DIR = Path(__file__).parent / "results"
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+PAPER_LOOP = (
+    "experiment=paper_mountaincar",
+    "logger=none",
+    "progress_bar=false",
+    "eval.episodes=0",
+    "eval.final_episodes=0",
+    "train.episodes=100000",
+    "algo.learning_starts=200",
+    "dynamics.learning_starts=64",
+)
+"""The paper's schedule (Table 1: one Q and one dynamics update per frame, batches of
+16 and 64), with updates starting after 200 (Q) and 64 (dynamics) frames instead of
+10,000 so that a short run measures the loop with its updates; no evaluation."""
 
 
 @dataclass(frozen=True)
@@ -52,6 +72,7 @@ class Budget:
     """How long to measure: ``repeats`` timed blocks of ``calls`` calls after ``warmup`` calls.
 
     A collector block is ``collector_batches`` batches of ``collector_steps`` steps of every env.
+    A training-loop figure is the median of ``train_repeats`` runs of ``train_frames`` frames.
     """
 
     warmup: int
@@ -59,10 +80,12 @@ class Budget:
     calls: int
     collector_batches: int
     collector_steps: int
+    train_frames: int
+    train_repeats: int
 
 
-FULL = Budget(warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50)
-QUICK = Budget(warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10)
+FULL = Budget(warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3)
+QUICK = Budget(warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1)
 
 
 @dataclass
@@ -157,7 +180,7 @@ def bench_exploration_step(budget: Budget) -> list[Measurement]:
 
 def bench_collection(budget: Budget) -> list[Measurement]:
     """(c) Collector env-steps/s on the torch MountainCar with N envs, and a GymEnv / SerialEnv reference."""
-    setups = [("torch", 1), ("torch", 8), ("torch", 64), ("gym", 1), ("gym", 8)]
+    setups = [("torch", 1), ("torch", 8), ("torch", 64), ("torch", 256), ("torch", 1024), ("gym", 1), ("gym", 8)]
     collectors, next_batch, frames_per_batch = [], {}, {}
     for (backend, num_envs), policy_name in itertools.product(setups, ("model-based", "egreedy")):
         env = make_env("mountaincar", num_envs=num_envs, backend=backend, seed=0)
@@ -176,8 +199,104 @@ def bench_collection(budget: Budget) -> list[Measurement]:
     return [Measurement("collection", name, frames_per_batch[name] / seconds, "env-steps/s") for name, seconds in timing.items()]
 
 
-SECTIONS: tuple[Callable[[Budget], list[Measurement]], ...] = (bench_gym_stepping, bench_exploration_step, bench_collection)
-"""Run in order; each returns its figures."""
+def paper_config(*overrides: str) -> DictConfig:
+    """The app's config (``conf/``) with :data:`PAPER_LOOP` and then ``overrides`` applied."""
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        return compose("config", overrides=[*PAPER_LOOP, *overrides])
+
+
+def training_frames_per_s(cfg: DictConfig) -> float:
+    """Frames/s of one ``torchrl_mbe.training.train(cfg)`` run in a temporary directory.
+
+    The summary's figure: frames over the loop's wall time, without building the
+    env and agent before the loop or saving the checkpoint after it.
+    """
+    with tempfile.TemporaryDirectory() as run_dir:
+        return train(cfg, run_dir)["frames_per_s"]
+
+
+def bench_training_loop(budget: Budget) -> list[Measurement]:
+    """(d) Frames/s of the whole training loop, model-based (gaussian) vs e-greedy exploration, same schedule.
+
+    ``per-step`` is the paper's loop (one frame, then its updates); ``fpb=64`` collects
+    64 frames (64 / N steps of each of N envs) and then runs their 64 Q and 64
+    dynamics updates. ``eps annealed``: x0.9995 per frame after 200 frames (eps is
+    0.25 after 3,000 frames, so ~57% of the frames plan); ``eps=1``: every frame plans.
+    """
+    loops = {
+        "per-step N=1, eps annealed": ("collector.frames_per_batch=1",),
+        "per-step N=1, eps=1": ("collector.frames_per_batch=1", "algo.eps_end=1.0"),
+        **{f"fpb=64 N={n}, eps annealed": ("collector.frames_per_batch=64", f"env.num_envs={n}") for n in (1, 8, 64)},
+    }
+    configs = {
+        (loop, exploration): paper_config(*overrides, f"exploration={exploration}", f"train.max_frames={budget.train_frames}")
+        for loop, overrides in loops.items()
+        for exploration in ("gaussian", "egreedy")
+    }
+    runs = {key: [] for key in configs}
+    for _ in range(budget.train_repeats):
+        for key, cfg in configs.items():
+            runs[key].append(training_frames_per_s(cfg))
+    results = []
+    for loop in loops:
+        frames_per_s = {exploration: statistics.median(runs[loop, exploration]) for exploration in ("gaussian", "egreedy")}
+        for exploration, value in frames_per_s.items():
+            results.append(Measurement("training", f"{loop}, {exploration}", value, "frames/s"))
+        ratio = frames_per_s["egreedy"] / frames_per_s["gaussian"]
+        results.append(Measurement("training", f"{loop}: gaussian / egreedy time per frame", ratio, "x"))
+    return results
+
+
+def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
+    """(e) Milliseconds of each part of one frame of the paper's per-step loop (N=1, eps=1).
+
+    The collector step (policy, env step, TorchRL bookkeeping) for each policy and for
+    the collector's own random policy (no network: the floor), then the per-frame work
+    of ``torchrl_mbe.training``: storing the frame, one Q update (DQNLoss, Adam,
+    HardUpdate; with two of its parts, ``of which``), one dynamics update and the
+    dynamics error on the new frame.
+    """
+    cfg = paper_config("algo.eps_end=1.0", "exploration=gaussian")
+    env = make_env("mountaincar", seed=0)
+    agent = build_agent(cfg, env)
+    egreedy_agent = build_agent(paper_config("algo.eps_end=1.0", "exploration=egreedy"), env)
+    collectors = {
+        name: Collector(make_env("mountaincar", seed=0), policy, frames_per_batch=1, total_frames=-1)
+        for name, policy in (("gaussian", agent.policy), ("egreedy", egreedy_agent.policy), ("random", None))
+    }
+    steps = {f"collector step, {name} policy": functools.partial(next, iter(c)) for name, c in collectors.items()}
+    buffer = make_replay_buffer(cfg.buffer, cfg.device)
+    for _ in range(300):
+        buffer.extend(steps["collector step, gaussian policy"]().reshape(-1))
+    agent.dynamics.fit_normalization(buffer)
+    frame = steps["collector step, gaussian policy"]().reshape(-1).clone()
+    q_batch = buffer.sample(cfg.algo.batch_size)
+    progress = Progress()
+    parts = {
+        **steps,
+        "store the frame (buffer.extend)": functools.partial(buffer.extend, frame),
+        "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer, cfg.algo.batch_size, None),
+        "  of which: buffer.sample(16)": functools.partial(buffer.sample, cfg.algo.batch_size),
+        "  of which: DQNLoss forward on 16": functools.partial(agent.q_loss, q_batch),
+        "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(
+            update_dynamics, agent, buffer, cfg.dynamics.batch_size, None
+        ),
+        "dynamics error on the new frame": functools.partial(check_dynamics_on_new_data, frame, agent, progress),
+    }
+    timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+    for collector in collectors.values():
+        collector.shutdown()
+    return [Measurement("breakdown", name, seconds * 1e3, "ms/frame") for name, seconds in timing.items()]
+
+
+SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
+    "gym": bench_gym_stepping,
+    "exploration": bench_exploration_step,
+    "collection": bench_collection,
+    "training": bench_training_loop,
+    "breakdown": bench_loop_breakdown,
+}
+"""Run in order; each returns its figures, named after the section."""
 
 
 def machine() -> dict[str, object]:
@@ -190,12 +309,25 @@ def machine() -> dict[str, object]:
         "nproc": os.cpu_count(),
         "torch_threads": torch.get_num_threads(),
         "load_average_1min": os.getloadavg()[0],
+        "torchrl_mbe": str(Path(torchrl_mbe.__file__).parent),
+        "git_commit": git_describe(Path(torchrl_mbe.__file__).parent),
         "python": platform.python_version(),
         "torch": torch.__version__,
         "torchrl": torchrl.__version__,
         "tensordict": tensordict.__version__,
         "gymnasium": gym.__version__,
     }
+
+
+def git_describe(directory: Path) -> str | None:
+    """``git describe --always --dirty`` of the checkout holding ``directory`` (None outside git)."""
+    try:
+        done = subprocess.run(
+            ["git", "-C", str(directory), "describe", "--always", "--dirty"], capture_output=True, text=True, check=True
+        )
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return done.stdout.strip()
 
 
 def print_table(measurements: list[Measurement]) -> None:
@@ -211,23 +343,25 @@ def print_table(measurements: list[Measurement]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="short smoke run")
-    parser.add_argument("--out", type=Path, help="JSON output path (default: bench/results/throughput-<date>.json)")
-    parser.add_argument("--threads", type=int, help="torch intra-op threads (default: torch's choice)")
+    parser.add_argument("--out", type=Path, help="JSON output path (default: bench/results/throughput-<date>-<HHMM>.json)")
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
+    parser.add_argument("--only", nargs="+", choices=list(SECTIONS), help="run these sections only (default: all)")
+    parser.add_argument("--note", default="", help="free text stored in the JSON (e.g. which code was measured)")
     args = parser.parse_args()
-    if args.threads:
-        torch.set_num_threads(args.threads)
+    torch.set_num_threads(args.threads)
     budget = QUICK if args.quick else FULL
     torch.manual_seed(0)
     started = datetime.datetime.now()
     environment = machine()
-    measurements = [m for section in SECTIONS for m in section(budget)]
+    measurements = [m for name, section in SECTIONS.items() if name in (args.only or SECTIONS) for m in section(budget)]
     print_table(measurements)
-    suffix = ("-quick" if args.quick else "") + (f"-threads{args.threads}" if args.threads else "")
-    out = args.out or RESULTS_DIR / f"throughput-{started:%Y-%m-%d}{suffix}.json"
+    suffix = ("-quick" if args.quick else "") + (f"-threads{args.threads}" if args.threads != 1 else "")
+    out = args.out or RESULTS_DIR / f"throughput-{started:%Y-%m-%d-%H%M}{suffix}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     report = {
         "date": started.isoformat(timespec="seconds"),
         "quick": args.quick,
+        "note": args.note,
         "budget": asdict(budget),
         "machine": environment,
         "measurements": [asdict(m) for m in measurements],
