@@ -122,16 +122,16 @@ def q_actor(spec: OneHot) -> QValueActor:
     return QValueActor(network, spec=spec, in_keys=["observation"])
 
 
-def model_based_policy(actor: QValueActor, spec: OneHot, num_envs: int) -> ModelBasedExplorationPolicy:
-    """Explores on every step (eps = 1): one window of the last 50 states per env."""
+def model_based_policy(actor: QValueActor, spec: OneHot, num_envs: int, eps: float = 1.0) -> ModelBasedExplorationPolicy:
+    """Explores with constant probability ``eps``: one window of the last 50 states per env."""
     batch_shape = (num_envs,) if num_envs > 1 else ()
     density = RollingGaussianDensity(2, window=50, batch_shape=batch_shape)
     planner = NoveltyPlanner(DynamicsModel(2, spec), density, spec)
-    return ModelBasedExplorationPolicy(actor, planner, eps_init=1.0, eps_end=1.0)
+    return ModelBasedExplorationPolicy(actor, planner, eps_init=eps, eps_end=eps)
 
 
-def egreedy_policy(actor: QValueActor, spec: OneHot) -> TensorDictSequential:
-    return TensorDictSequential(actor, EGreedyModule(spec, eps_init=1.0, eps_end=1.0))
+def egreedy_policy(actor: QValueActor, spec: OneHot, eps: float = 1.0) -> TensorDictSequential:
+    return TensorDictSequential(actor, EGreedyModule(spec, eps_init=eps, eps_end=eps))
 
 
 def bench_gym_stepping(budget: Budget) -> list[Measurement]:
@@ -154,16 +154,21 @@ def call_on_next(policy: TensorDictModuleBase, inputs: Iterator[TensorDictBase])
 
 
 def bench_exploration_step(budget: Budget) -> list[Measurement]:
-    """(b) One policy call under ExplorationType.RANDOM, eps = 1: model-based vs EGreedyModule."""
+    """(b) One policy call under ExplorationType.RANDOM: model-based vs EGreedyModule.
+
+    With eps = 1 every call explores (the model-based policy plans); with eps = 0
+    (``greedy step``) none does, and the model-based policy only adds the window update.
+    """
     spec = OneHot(3, dtype=torch.int64)
     low, high = torch.tensor([-1.2, -0.07]), torch.tensor([0.6, 0.07])
     results = []
-    for batch in (1, 64):
+    for batch, eps in ((1, 1.0), (64, 1.0), (1, 0.0)):
         batch_size = (batch,) if batch > 1 else ()
         states = [low + (high - low) * torch.rand(*batch_size, 2) for _ in range(100)]
         inputs = itertools.cycle([TensorDict({"observation": state}, batch_size) for state in states])
         actor = q_actor(spec)
-        policies = {"model-based": model_based_policy(actor, spec, batch), "egreedy": egreedy_policy(actor, spec)}
+        policies = {"model-based": model_based_policy(actor, spec, batch, eps), "egreedy": egreedy_policy(actor, spec, eps)}
+        label = f"batch {batch}" + (", greedy step (eps=0)" if eps == 0 else "")
         with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
             timing = seconds_per_call(
                 {name: functools.partial(call_on_next, policy, inputs) for name, policy in policies.items()},
@@ -172,9 +177,9 @@ def bench_exploration_step(budget: Budget) -> list[Measurement]:
                 calls=budget.calls,
             )
         for name, seconds in timing.items():
-            results.append(Measurement("exploration", f"{name} policy call, batch {batch}", seconds * 1e3, "ms/call"))
+            results.append(Measurement("exploration", f"{name} policy call, {label}", seconds * 1e3, "ms/call"))
         ratio = timing["model-based"] / timing["egreedy"]
-        results.append(Measurement("exploration", f"model-based / egreedy, batch {batch}", ratio, "x"))
+        results.append(Measurement("exploration", f"model-based / egreedy, {label}", ratio, "x"))
     return results
 
 
