@@ -1,6 +1,6 @@
 """Train DQN with model-based exploration: ``python train.py env=mountaincar exploration=gaussian``.
 
-A thin Hydra wrapper around :func:`torchrl_mbe.training.train`; the config lives in ``conf/``.
+A thin Hydra wrapper around :func:`torchrl_mbe.app.train`; the config lives in ``conf/``.
 Sweeps: ``python train.py -m exploration=gaussian,kernel,egreedy seed=0,1,2``.
 """
 from __future__ import annotations
@@ -11,8 +11,7 @@ import logging
 import hydra
 from omegaconf import DictConfig
 
-from torchrl_mbe.config import ConfigError
-from torchrl_mbe.training import train
+from torchrl_mbe.app import ConfigError, train
 
 log = logging.getLogger("train")
 

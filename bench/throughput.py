@@ -26,6 +26,7 @@ import statistics
 import subprocess
 import tempfile
 import time
+from types import SimpleNamespace
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -47,8 +48,10 @@ from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
-from torchrl_mbe.agent import build_agent
-from torchrl_mbe.training import Progress, check_dynamics_on_new_data, make_replay_buffer, train, update_dynamics, update_q
+from torchrl_mbe.app import train
+from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
+from torchrl_mbe.app.dqn import SUCCESSOR_KEY, ReplayTransitions, check_dynamics_on_new_data, make_replay_buffer, update_dynamics, update_q
+from torchrl_mbe.app.run import Progress
 
 RESULTS_DIR = Path(__file__).parent / "results"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -211,7 +214,7 @@ def paper_config(*overrides: str) -> DictConfig:
 
 
 def training_frames_per_s(cfg: DictConfig) -> float:
-    """Frames/s of one ``torchrl_mbe.training.train(cfg)`` run in a temporary directory.
+    """Frames/s of one ``torchrl_mbe.app.train(cfg)`` run in a temporary directory.
 
     The summary's figure: frames over the loop's wall time, without building the
     env and agent before the loop or saving the checkpoint after it.
@@ -257,7 +260,7 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
 
     The collector step (policy, env step, TorchRL bookkeeping) for each policy and for
     the collector's own random policy (no network: the floor), then the per-frame work
-    of ``torchrl_mbe.training``: storing the frame, one Q update (DQNLoss, Adam,
+    of ``torchrl_mbe.app.dqn``: storing the frame, one Q update (DQNLoss, Adam,
     HardUpdate; with two of its parts, ``of which``), one dynamics update and the
     dynamics error on the new frame.
     """
@@ -271,22 +274,24 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     }
     steps = {f"collector step, {name} policy": functools.partial(next, iter(c)) for name, c in collectors.items()}
     buffer = make_replay_buffer(cfg.buffer, cfg.device)
+    transitions = ReplayTransitions(1, cfg.algo.gamma)
     for _ in range(300):
-        buffer.extend(steps["collector step, gaussian policy"]().reshape(-1))
-    agent.dynamics.fit_normalization(buffer)
+        buffer.extend(transitions(steps["collector step, gaussian policy"]()))
+    agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
     frame = steps["collector step, gaussian policy"]().reshape(-1).clone()
+    transition = transitions(frame)
     q_batch = buffer.sample(cfg.algo.batch_size)
-    progress = Progress()
+    run = SimpleNamespace(progress=Progress())  # the part of a Run the dynamics check reads
     parts = {
         **steps,
-        "store the frame (buffer.extend)": functools.partial(buffer.extend, frame),
+        "store the frame (buffer.extend)": functools.partial(buffer.extend, transition),
         "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer, cfg.algo.batch_size, None),
         "  of which: buffer.sample(16)": functools.partial(buffer.sample, cfg.algo.batch_size),
         "  of which: DQNLoss forward on 16": functools.partial(agent.q_loss, q_batch),
         "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(
             update_dynamics, agent, buffer, cfg.dynamics.batch_size, None
         ),
-        "dynamics error on the new frame": functools.partial(check_dynamics_on_new_data, frame, agent, progress),
+        "dynamics error on the new frame": functools.partial(check_dynamics_on_new_data, agent, frame, run),
     }
     timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     for collector in collectors.values():

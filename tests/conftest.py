@@ -1,9 +1,17 @@
+"""Shared setup: one torch thread, a fixed seed, wandb off; the app tests' config and subprocess helpers."""
 from __future__ import annotations
 
+import csv
 import os
+import subprocess
+import sys
+from pathlib import Path
 
 import pytest
 import torch
+from hydra import compose, initialize_config_dir
+
+import torchrl_mbe.app  # noqa: F401  (registers the config schema)
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 torch.set_num_threads(1)  # tiny networks: one thread is fastest and immune to a busy machine
@@ -13,3 +21,56 @@ torch.set_num_threads(1)  # tiny networks: one thread is fastest and immune to a
 def _seed_and_threads():
     torch.manual_seed(0)
     yield
+
+
+REPO = Path(__file__).resolve().parents[1]
+QUICK = (
+    "logger=csv",
+    "progress_bar=false",
+    "train.episodes=50",
+    "train.max_frames=300",
+    "algo.learning_starts=100",
+    "eval.episodes=0",
+    "eval.final_episodes=1",
+)
+"""A few hundred frames: every part runs, nothing is learned."""
+
+
+@pytest.fixture
+def compose_config():
+    """``compose_config(*overrides)``: the app's config with :data:`QUICK` and ``overrides`` applied."""
+
+    def compose_with(*overrides: str):
+        with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+            return compose("config", overrides=[*quick_for(overrides), *overrides])
+
+    return compose_with
+
+
+def quick_for(overrides) -> list[str]:
+    """:data:`QUICK`, less its DQN settings when ``overrides`` pick REINFORCE."""
+    return [o for o in QUICK if not ("algo=reinforce" in overrides and o.startswith("algo."))]
+
+
+@pytest.fixture
+def run_app():
+    """``run_app(*args, cwd=...)``: ``python train.py`` with :data:`QUICK` and ``args`` in a subprocess."""
+
+    def run(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, str(REPO / "train.py"), *args, *quick_for(args)],
+            cwd=cwd, env={**os.environ, "WANDB_MODE": "disabled", **(env or {})}, capture_output=True, text=True, timeout=600,
+        )
+
+    return run
+
+
+@pytest.fixture
+def read_table():
+    """``read_table(run_dir, table)``: the rows of one of a run's CSV tables."""
+
+    def read(run_dir: Path, table: str) -> list[dict]:
+        with (run_dir / f"{table}.csv").open() as handle:
+            return list(csv.DictReader(handle))
+
+    return read

@@ -1,0 +1,31 @@
+"""The paper's exploration-only experiment, end to end (minutes: run with ``pytest -m slow``)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from torchrl_mbe.app import train
+from torchrl_mbe.report.metrics import grid_coverage
+
+pytestmark = pytest.mark.slow
+
+MOUNTAINCAR_BOX = ((-1.2, -0.07), (0.6, 0.07))
+
+
+def explore(compose_config, tmp_path, *overrides: str) -> tuple[dict, float]:
+    cfg = compose_config("experiment=coverage_mountaincar", "train.max_frames=null", *overrides)
+    summary = train(cfg, tmp_path)
+    coverage = grid_coverage(np.load(tmp_path / "visited_states.npy"), *MOUNTAINCAR_BOX)
+    return summary, coverage
+
+
+def test_planning_with_the_true_dynamics_covers_most_of_the_state_space(tmp_path, compose_config):
+    summary, coverage = explore(compose_config, tmp_path, "exploration=gaussian", "dynamics=oracle")
+    assert coverage > 0.6 and summary["first_success_episode"] <= 3
+
+
+def test_planning_with_the_learned_model_beats_random_actions(tmp_path, compose_config):
+    learned, learned_coverage = explore(compose_config, tmp_path / "learned", "exploration=gaussian")
+    random, random_coverage = explore(compose_config, tmp_path / "random", "exploration=egreedy")
+    assert learned_coverage > 0.5 > 0.25 > random_coverage
+    assert learned["first_success_episode"] is not None and random["first_success_episode"] is None

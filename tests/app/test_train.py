@@ -1,0 +1,209 @@
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import pytest
+import torch
+
+import torchrl_mbe.app.run as run_module
+from torchrl_mbe.app import ConfigError, train
+from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT
+
+
+@pytest.mark.parametrize("exploration", ["gaussian", "kernel", "egreedy", "none"])
+def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration, compose_config, read_table):
+    summary = train(compose_config(f"exploration={exploration}"), tmp_path)
+    assert summary["frames"] >= 300 and summary["q_updates"] >= 50  # 0.25 updates per frame after 100
+    assert summary["method"] == f"dqn+{exploration}"
+    assert (summary["dynamics_updates"] > 0) == (exploration in ("gaussian", "kernel"))
+    episodes = read_table(tmp_path, "episodes")
+    assert [int(row["episode"]) for row in episodes] == list(range(1, summary["episodes"] + 1))
+    assert json.loads((tmp_path / "summary.json").read_text()) == summary
+    assert (tmp_path / CHECKPOINT).exists()
+
+
+@pytest.mark.parametrize("env", ["lunarlander", "acrobot", "cartpole"])
+def test_other_supported_envs_train_with_gaussian_exploration(tmp_path, env, compose_config):
+    summary = train(compose_config(f"env={env}"), tmp_path)
+    assert summary["frames"] >= 300 and summary["dynamics_updates"] > 0
+    assert summary["final_eval_return"] is not None
+
+
+def test_batched_envs_and_prioritized_replay(tmp_path, compose_config):
+    summary = train(compose_config("env.num_envs=4", "buffer=prioritized", "collector.frames_per_batch=32"), tmp_path)
+    assert summary["frames"] >= 300 and summary["q_updates"] > 0
+
+
+def test_paper_preset_decays_eps_by_0_9995_per_update(tmp_path, compose_config, read_table):
+    cfg = compose_config("experiment=paper_mountaincar", "algo.learning_starts=100", "train.max_frames=250")
+    assert cfg.algo.num_cells == [48] and cfg.algo.hard_update_interval == 8 and cfg.algo.lr == 0.05
+    train(cfg, tmp_path)
+    last = read_table(tmp_path, "episodes")[-1]
+    decayed_steps = int(last["frames"]) - 1 - 100  # eps logged is the one that acted on the last frame
+    assert float(last["eps"]) == pytest.approx(0.9995**decayed_steps, abs=2e-5)
+
+
+def test_same_config_and_seed_give_the_same_returns(tmp_path, compose_config, read_table):
+    cfg = compose_config("train.max_frames=600")
+    first, second = train(cfg, tmp_path / "a"), train(cfg, tmp_path / "b")
+    returns = [[row["return"] for row in read_table(tmp_path / run, "episodes")] for run in "ab"]
+    assert returns[0] == returns[1] and len(returns[0]) >= 2
+    assert first["final_eval_return"] == second["final_eval_return"]
+
+
+def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(tmp_path, monkeypatch, compose_config, read_table):
+    cfg = compose_config("train.max_frames=480", "eval.final_episodes=0", "algo.n_steps=1")  # n-step holds frames back
+    calls = {"n": 0}
+    original = run_module._record_episodes
+
+    def press_ctrl_c_at_the_tenth_batch(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 10:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "_record_episodes", press_ctrl_c_at_the_tenth_batch)
+    with pytest.raises(SystemExit, match="Interrupted at 160 frames"):
+        train(cfg, tmp_path)
+    monkeypatch.setattr(run_module, "_record_episodes", original)
+    checkpoint = torch.load(tmp_path / CHECKPOINT, weights_only=False)
+    assert checkpoint["progress"]["frames"] == 160
+    assert len(checkpoint["replay_buffer"]["_storage"]["_storage"]["observation"]) >= 160
+
+    cfg.resume = True
+    summary = train(cfg, tmp_path)
+    assert summary["frames"] == 480
+    final = torch.load(tmp_path / CHECKPOINT, weights_only=False)
+    assert int(final["replay_buffer"]["_storage"]["_len"]) == 480  # every frame stored once
+    episodes = [int(row["episode"]) for row in read_table(tmp_path, "episodes")]
+    assert episodes == list(range(1, len(episodes) + 1))
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["exploration.window=1"], "exploration.window=1: expected an integer >= 2"),
+        (["buffer.size=-5"], "buffer.size=-5: expected a positive integer"),
+        (["algo.batch_size=0"], "algo.batch_size=0: expected a positive integer"),
+        (["env.name=Pendulum-v1"], "Pendulum-v1 has a Box action space"),
+        (["env.name=NoSuchEnv-v9"], "Unknown environment 'NoSuchEnv-v9'"),
+        (["env=lunarlander", "dynamics=oracle"], "dynamics=oracle: the oracle exists for MountainCar-v0 only"),
+        (["env.num_envs=3"], "collector.frames_per_batch=16: expected a multiple of env.num_envs=3"),
+        (["algo.gamma=1.5"], r"algo.gamma=1.5: expected a discount in \[0, 1\]"),
+        (["algo.gamma=-0.5"], r"algo.gamma=-0.5: expected a discount in \[0, 1\]"),
+        (["train.max_frames=-5"], "train.max_frames=-5: expected a positive integer, or null"),
+        (["exploration.model_error_threshold=-1"], "exploration.model_error_threshold=-1.0: expected a number >= 0"),
+        (["algo.loss_function=foo"], "algo.loss_function='foo': expected one of l2, smooth_l1"),
+        (["algo.soft_update_tau=5"], r"algo.soft_update_tau=5.0: expected a number in \(0, 1\]"),
+        (["algo.eps_end=0.5", "algo.eps_init=0.1"], "algo.eps_end=0.5: expected at most algo.eps_init=0.1"),
+        (["device=banana"], "device='banana': expected cpu, or cuda"),
+        (["dynamics.max_grad_norm=0"], "dynamics.max_grad_norm=0.0: expected a number > 0, or null"),
+    ],
+)
+def test_bad_config_values_get_one_clear_error(tmp_path, overrides, message, compose_config):
+    with pytest.raises(ConfigError, match=message):
+        train(compose_config(*overrides), tmp_path)
+    assert not (tmp_path / CHECKPOINT).exists()
+
+
+def test_a_finished_run_is_never_overwritten_and_foreign_checkpoints_are_refused(tmp_path, compose_config):
+    train(compose_config("train.max_frames=120", "eval.final_episodes=0"), tmp_path)
+    before = (tmp_path / "episodes.csv").read_text()
+    with pytest.raises(ConfigError, match="already holds a run. Pass resume=true"):
+        train(compose_config("train.max_frames=120"), tmp_path)
+    with pytest.raises(ConfigError, match=r"another config; differing keys: algo.batch_size: 256 -> 32$"):
+        train(compose_config("resume=true", "algo.batch_size=32"), tmp_path)
+    assert (tmp_path / "episodes.csv").read_text() == before
+    (tmp_path / CHECKPOINT).write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="Cannot read checkpoint"):
+        train(compose_config("resume=true"), tmp_path)
+
+
+
+def test_train_py_runs_and_prints_a_summary(tmp_path, run_app):
+    result = run_app("env=mountaincar", "exploration=gaussian", f"hydra.run.dir={tmp_path}/run", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert '"method": "dqn+gaussian"' in result.stderr + result.stdout
+    assert (tmp_path / "run" / "summary.json").exists()
+    bad = run_app("exploration.window=1", f"hydra.run.dir={tmp_path}/bad", cwd=tmp_path)
+    assert bad.returncode == 1
+    assert "Error: exploration.window=1" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_multirun_sweep_writes_one_run_per_job(tmp_path, run_app):
+    result = run_app("-m", "exploration=gaussian,egreedy", f"hydra.sweep.dir={tmp_path}/sweep", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    methods = sorted(json.loads(p.read_text())["method"] for p in (tmp_path / "sweep").glob("*/summary.json"))
+    assert methods == ["dqn+egreedy", "dqn+gaussian"]
+
+
+def test_wandb_logs_offline_into_the_run_dir(tmp_path, monkeypatch, compose_config):
+    monkeypatch.setenv("WANDB_MODE", "offline")
+    train(compose_config("logger=wandb", "train.max_frames=100", "eval.final_episodes=0"), tmp_path)
+    assert list((tmp_path / "wandb").glob("offline-run-*"))
+
+
+def test_mountaincar_defaults_to_3_step_returns_and_the_paper_to_1(compose_config):
+    assert compose_config().algo.n_steps == 3 and compose_config("experiment=paper_mountaincar").algo.n_steps == 1
+
+
+def test_resume_of_a_finished_run_changes_nothing_and_a_larger_budget_continues(tmp_path, compose_config, read_table):
+    train(compose_config("train.max_frames=160", "eval.final_episodes=1"), tmp_path)
+    before = {name: (tmp_path / name).read_bytes() for name in ("summary.json", "episodes.csv", "evaluations.csv")}
+    again = train(compose_config("train.max_frames=160", "eval.final_episodes=1", "resume=true"), tmp_path)
+    assert again == json.loads(before["summary.json"])
+    assert {name: (tmp_path / name).read_bytes() for name in before} == before
+    longer = train(compose_config("train.max_frames=320", "eval.final_episodes=1", "resume=true"), tmp_path)
+    assert longer["frames"] == 320
+
+
+def test_csv_headers_are_on_disk_before_the_first_row(tmp_path, compose_config, monkeypatch):
+    seen = {}
+
+    def look_at_the_files_at_the_first_batch(run, batch):
+        seen.update({name: (tmp_path / f"{name}.csv").read_text() for name in ("episodes", "evaluations", "updates")})
+        raise KeyboardInterrupt  # as a SIGKILL would, before anything else is written
+
+    monkeypatch.setattr("torchrl_mbe.app.dqn.record_frames", look_at_the_files_at_the_first_batch)
+    with pytest.raises(KeyboardInterrupt):
+        train(compose_config(), tmp_path)
+    assert seen["episodes"].startswith("episode,frames,return") and seen["evaluations"].startswith("frames,episode")
+
+
+def test_episode_budget_is_exact_with_batched_envs(tmp_path, compose_config, read_table):
+    summary = train(compose_config("env.num_envs=8", "collector.frames_per_batch=64", "train.episodes=3", "train.max_frames=null"), tmp_path)
+    assert summary["episodes"] == 3 and len(read_table(tmp_path, "episodes")) == 3
+
+
+def test_best_policy_is_kept_and_the_summary_says_solved_or_not(tmp_path, compose_config, read_table):
+    summary = train(compose_config("train.max_frames=400", "eval.episodes=1", "eval.every_frames=200"), tmp_path)
+    evaluations = [float(row["eval_return_mean"]) for row in read_table(tmp_path, "evaluations")]
+    assert summary["best_eval_return"] == max(evaluations[:-1])  # periodic ones; the last row is the final evaluation
+    best = torch.load(tmp_path / BEST_POLICY, weights_only=False)
+    assert best["eval_return_mean"] == summary["best_eval_return"] and best["frames"] == summary["best_eval_frames"]
+    assert summary["solved"] is (summary["final_eval_return"] >= -110)
+
+
+def test_stop_when_solved_ends_at_the_first_solved_evaluation(tmp_path, compose_config, monkeypatch):
+    monkeypatch.setattr(run_module, "evaluate", lambda *args, **kwargs: {"eval_return_mean": -100.0, "eval_return_std": 0.0, "eval_success_rate": 1.0})
+    summary = train(compose_config("train.stop_when_solved=true", "train.max_frames=2000", "eval.episodes=1", "eval.every_frames=160"), tmp_path)
+    assert summary["frames"] == 160 and summary["solved_at_frames"] == 160 and summary["solved"] is True
+
+
+def test_checkpoints_of_version_0_1_are_refused_with_one_line(tmp_path, compose_config):
+    train(compose_config("train.max_frames=120", "eval.final_episodes=0"), tmp_path)
+    checkpoint = torch.load(tmp_path / CHECKPOINT, weights_only=False)
+    del checkpoint["format"]
+    torch.save(checkpoint, tmp_path / CHECKPOINT)
+    with pytest.raises(ConfigError, match="checkpoint format 1 .torchrl-mbe 0.1.0 wrote 1.; this version reads format 2"):
+        train(compose_config("train.max_frames=240", "resume=true"), tmp_path)
+
+
+def test_resume_restores_the_target_network_and_its_update_counter(tmp_path, compose_config):
+    summary = train(compose_config("train.max_frames=600", "eval.final_episodes=0", "algo.hard_update_interval=5"), tmp_path)
+    saved = torch.load(tmp_path / CHECKPOINT, weights_only=False)["agent"]
+    assert summary["q_updates"] % 6 != 0  # a counter mid-period, which a resume must not restart
+    assert saved["target_updater_counter"] == summary["q_updates"] % 6  # HardUpdate counts 0..interval
+    assert "q_loss" not in saved  # the Q weights are stored once, in the policy

@@ -1,0 +1,51 @@
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.data import Categorical, OneHot
+
+from torchrl_mbe import SUPPORTED_ENVS, make_env
+from torchrl_mbe.envs import MountainCarDynamics
+
+
+@pytest.mark.parametrize("name", list(SUPPORTED_ENVS))
+def test_supported_envs_build_with_the_transforms_a_dqn_needs(name):
+    env = make_env(name, seed=0)
+    rollout = env.rollout(5)
+    assert isinstance(env.action_spec, OneHot)
+    assert rollout["observation"].dtype == torch.float32
+    for key in ("step_count", "is_init", ("next", "episode_reward")):
+        assert key in rollout.keys(True)
+    assert make_env(SUPPORTED_ENVS[name]).action_spec.space.n == env.action_spec.space.n
+
+
+@pytest.mark.parametrize(
+    "name, message",
+    [("Pendulum-v1", "Pendulum-v1 has a Box action space"), ("mountain-car", "Unknown environment 'mountain-car'")],
+)
+def test_unsupported_envs_get_one_clear_error_naming_what_is_supported(name, message):
+    with pytest.raises(ValueError, match=message) as error:
+        make_env(name)
+    assert "mountaincar (MountainCar-v0)" in str(error.value)
+
+
+@pytest.mark.parametrize("spec", [OneHot(3), Categorical(3)], ids=["one-hot", "categorical"])
+def test_oracle_dynamics_equals_gymnasium_mountaincar_step(spec):
+    generator = torch.Generator().manual_seed(0)
+    states = torch.stack([torch.rand(200, generator=generator) * 1.8 - 1.2, torch.rand(200, generator=generator) * 0.14 - 0.07], -1)
+    states[:10, 0] = -1.2  # at the left wall, moving left
+    states[:10, 1] = -0.05
+    actions = torch.randint(3, (200,), generator=generator)
+    encoded = torch.nn.functional.one_hot(actions, 3) if isinstance(spec, OneHot) else actions
+    td = TensorDict({"observation": states.double(), "action": encoded}, [200])
+    predicted = MountainCarDynamics(spec)(td)["predicted_observation"]
+    env = gym.make("MountainCar-v0").unwrapped
+    env.reset(seed=0)
+    expected = []
+    for state, action in zip(states.double().numpy(), actions.tolist()):
+        env.state = (float(state[0]), float(state[1]))
+        expected.append(env.step(action)[0])
+    torch.testing.assert_close(predicted.float(), torch.from_numpy(np.stack(expected)), atol=1e-6, rtol=0)

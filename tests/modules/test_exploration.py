@@ -1,0 +1,126 @@
+from __future__ import annotations
+
+import pytest
+import torch
+from dynamics_doubles import ShiftDynamics
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.envs import ExplorationType, SerialEnv, set_exploration_type
+from torchrl.modules import MLP, QValueActor
+
+from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
+
+SHIFTS = torch.tensor([[-0.1, 0.0], [0.0, 0.0], [0.5, 0.5]])
+
+
+def build_policy(env, *, window=50, batch_shape=(), dynamics=None, **kwargs):
+    spec = env.action_spec
+    actor = QValueActor(MLP(out_features=3, num_cells=[48]), spec=spec, in_keys=["observation"])
+    density = RollingGaussianDensity(2, window=window, batch_shape=batch_shape)
+    planner = NoveltyPlanner(dynamics or DynamicsModel(2, spec), density, spec)
+    kwargs = {"eps_init": 1.0, "eps_end": 0.01, "annealing_num_steps": 100, **kwargs}
+    return ModelBasedExplorationPolicy(actor, planner, **kwargs)
+
+
+@pytest.fixture
+def env():
+    return make_env("mountaincar", seed=0)
+
+
+def test_deterministic_mode_is_exactly_the_greedy_actor_and_leaves_the_window_alone(env):
+    policy = build_policy(env)
+    td = env.reset()
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        for _ in range(20):
+            assert torch.equal(policy(td.clone())["action"], policy.actor(td.clone())["action"])
+        env.rollout(30, policy)
+    assert policy.novelty.num_stored == 0
+
+
+def test_random_mode_with_eps_one_takes_the_planners_action():
+    env = make_env("mountaincar", seed=0)
+    policy = build_policy(env, dynamics=ShiftDynamics(SHIFTS))
+    policy.novelty.update(0.01 * torch.randn(50, 2) + torch.tensor([-0.5, 0.0]))
+    # greedy would say "push left" on every state; planning says action 2 (furthest shift)
+    torch.nn.init.zeros_(policy.actor.module[0].module[-1].weight)
+    with torch.no_grad():
+        policy.actor.module[0].module[-1].bias.copy_(torch.tensor([1.0, 0.0, 0.0]))
+    td = TensorDict({"observation": torch.tensor([-0.5, 0.0])}, [])
+    with set_exploration_type(ExplorationType.RANDOM):
+        actions = torch.stack([policy(td.clone())["action"] for _ in range(10)])
+    assert (actions.argmax(-1) == 2).all()
+    policy.eps.fill_(0.0)
+    assert policy(td.clone())["action"].argmax() == 0
+
+
+def test_window_holds_the_last_visited_states_after_a_collector_run(env):
+    policy = build_policy(env, window=50)
+    collector = Collector(env, policy, frames_per_batch=40, total_frames=120)
+    observations = torch.cat([batch["observation"] for batch in collector])
+    collector.shutdown()
+    torch.testing.assert_close(policy.novelty.window_states(), observations[-50:])
+
+
+def test_window_is_per_environment_in_a_batched_collector():
+    env = SerialEnv(3, lambda: make_env("mountaincar"))
+    env.set_seed(0)
+    policy = build_policy(env, window=10, batch_shape=(3,))
+    collector = Collector(env, policy, frames_per_batch=30, total_frames=60)
+    batches = [batch for batch in collector]  # each batch is (3 envs, 10 steps)
+    collector.shutdown()
+    observations = torch.cat([batch["observation"] for batch in batches], 1)
+    torch.testing.assert_close(policy.novelty.window_states(), observations[:, -10:])
+
+
+def test_rollout_explores_and_eps_anneals_linearly_or_exponentially(env):
+    policy = build_policy(env, annealing_num_steps=100)
+    rollout = env.rollout(25, policy)
+    assert policy.novelty.num_stored == 25 == rollout.shape[0]
+    policy.step(50)
+    assert policy.eps.item() == pytest.approx(0.505)
+    policy.step(1000)
+    assert policy.eps.item() == pytest.approx(0.01)
+    paper = build_policy(env, schedule="exponential", annealing_num_steps=9209)
+    paper.step(1)
+    assert paper.eps.item() == pytest.approx(0.9995, abs=1e-6)  # the paper's per-step decay
+    paper.step(9208)
+    assert paper.eps.item() == pytest.approx(0.01, abs=1e-6)
+
+
+def test_state_dict_round_trip_keeps_eps_window_and_weights(env):
+    policy = build_policy(env)
+    env.rollout(30, policy)
+    policy.step(40)
+    restored = build_policy(env)
+    restored.load_state_dict(policy.state_dict())
+    assert restored.eps.item() == policy.eps.item()
+    torch.testing.assert_close(restored.novelty.window_states(), policy.novelty.window_states())
+    td = env.reset()
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        assert torch.equal(restored(td.clone())["action"], policy(td.clone())["action"])
+
+
+def test_warm_up_takes_random_actions_until_the_model_is_trusted(env):
+    policy = build_policy(env, dynamics=ShiftDynamics(SHIFTS), model_error_threshold=0.1)
+    policy.novelty.update(0.01 * torch.randn(50, 2))
+    td = TensorDict({"observation": torch.zeros(2)}, [])
+    untrusted = torch.stack([policy(td.clone())["action"].long().argmax() for _ in range(300)])
+    assert set(untrusted.tolist()) == {0, 1, 2}
+    assert not policy.report_model_error(0.5)
+    assert policy.report_model_error(0.05)
+    trusted = torch.stack([policy(td.clone())["action"].long().argmax() for _ in range(20)])
+    assert (trusted == 2).all()
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"eps_init": 0.1, "eps_end": 0.5}, "eps_end <= eps_init"),
+        ({"annealing_num_steps": 0}, "annealing_num_steps"),
+        ({"schedule": "cosine"}, "schedule must be"),
+        ({"schedule": "exponential", "eps_end": 0.0}, "eps_end > 0"),
+    ],
+)
+def test_bad_schedules_are_rejected(env, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        build_policy(env, **kwargs)

@@ -1,0 +1,379 @@
+"""The app's config schema: every setting, its default and what it accepts, in one place.
+
+The schema is a tree of dataclasses (Hydra structured configs). :func:`register_configs`
+puts it in Hydra's ``ConfigStore``: the root as ``base_config`` (``conf/config.yaml``
+extends it) and every option of a choice group (``algo``, ``exploration``, ``dynamics``,
+``buffer``, ``logger``) under its name, so ``exploration=kernel`` selects
+:class:`KernelExploration` with its defaults. Files in ``conf/`` only override values:
+``conf/env/`` holds each environment's settings, ``conf/experiment/`` the presets.
+
+Hydra checks types and key names while composing. :func:`check_config` then checks
+every value once, before anything is built: each field carries its rule
+(:func:`setting`), and the rules that tie fields together follow. A bad value
+raises :class:`ConfigError` naming the key, the value and what is accepted.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import torch
+from hydra.core.config_store import ConfigStore
+from omegaconf import MISSING, DictConfig, OmegaConf
+
+from torchrl_mbe.envs.registry import resolve_env_id
+
+__all__ = [
+    "ConfigError",
+    "Config",
+    "DQNConfig",
+    "ReinforceConfig",
+    "PlanningExploration",
+    "check_config",
+    "config_differences",
+    "config_id",
+    "method_name",
+    "register_configs",
+]
+
+
+class ConfigError(ValueError):
+    """A config value the app cannot run with; the message names the key and what is accepted."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """What a setting accepts: a test and the words that describe it."""
+
+    test: Callable[[Any], bool]
+    accepted: str
+
+    def or_none(self) -> Rule:
+        return Rule(lambda v: v is None or self.test(v), f"{self.accepted}, or null")
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+POSITIVE_INT = Rule(lambda v: _is_int(v) and v >= 1, "a positive integer")
+NON_NEGATIVE_INT = Rule(lambda v: _is_int(v) and v >= 0, "an integer >= 0")
+NON_NEGATIVE = Rule(lambda v: _is_number(v) and v >= 0, "a number >= 0")
+POSITIVE = Rule(lambda v: _is_number(v) and v > 0, "a number > 0")
+PROBABILITY = Rule(lambda v: _is_number(v) and 0 <= v <= 1, "a number in [0, 1]")
+DISCOUNT = Rule(lambda v: _is_number(v) and 0 <= v <= 1, "a discount in [0, 1]")
+FRACTION = Rule(lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]")
+LAYERS = Rule(lambda v: len(v) > 0 and all(_is_int(c) and c >= 1 for c in v), "a non-empty list of positive layer sizes")
+ANY = Rule(lambda v: True, "anything")
+
+
+def one_of(*options: str) -> Rule:
+    return Rule(lambda v: v in options, "one of " + ", ".join(options))
+
+
+def setting(default: Any, rule: Rule = ANY) -> Any:
+    """A dataclass field with its default and the :class:`Rule` its values must pass."""
+    if isinstance(default, list):
+        return field(default_factory=lambda: list(default), metadata={"rule": rule})
+    return field(default=default, metadata={"rule": rule})
+
+
+@dataclass
+class EnvConfig:
+    name: str = "mountaincar"  # a short name (conf/env/) or any discrete-action gymnasium id
+    num_envs: int = setting(1, POSITIVE_INT)  # >1: a batch of envs, one novelty window each
+
+
+@dataclass
+class DQNConfig:
+    """DQN (TorchRL's QValueActor + DQNLoss); per-environment values live in ``conf/env/``."""
+
+    name: str = "dqn"
+    num_cells: list[int] = setting([64, 64], LAYERS)  # Q-network hidden layers
+    gamma: float = setting(0.99, DISCOUNT)
+    n_steps: int = setting(1, POSITIVE_INT)  # n-step returns (1: the paper)
+    lr: float = setting(2e-3, POSITIVE)  # Adam
+    batch_size: int = setting(256, POSITIVE_INT)
+    learning_starts: int = setting(1000, NON_NEGATIVE_INT)  # frames collected before the first update
+    updates_per_frame: float = setting(0.25, NON_NEGATIVE)  # gradient steps per collected frame (the paper: 1)
+    eps_init: float = setting(1.0, PROBABILITY)
+    eps_end: float = setting(0.05, PROBABILITY)
+    eps_annealing_frames: int = setting(20_000, POSITIVE_INT)  # frames (counted from learning_starts) to eps_end
+    eps_schedule: str = setting("linear", one_of("linear", "exponential"))  # exponential: the paper's x0.9995
+    max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())  # null: no clipping
+    standardize_inputs: bool = True  # the Q-network reads observations standardized with buffer statistics
+    loss_function: str = setting("smooth_l1", one_of("l2", "smooth_l1"))  # smooth_l1: the paper's error clipping
+    double_dqn: bool = True
+    target_update: str = setting("hard", one_of("hard", "soft"))
+    hard_update_interval: int = setting(250, POSITIVE_INT)  # updates between target copies
+    soft_update_tau: float = setting(0.005, FRACTION)  # Polyak weight of the online network
+
+
+@dataclass
+class ReinforceConfig:
+    """REINFORCE, the paper's policy-gradient baseline (its Table 2); explores by sampling its policy."""
+
+    name: str = "reinforce"
+    num_cells: list[int] = setting([10], LAYERS)  # one hidden layer of 10 tanh units
+    gamma: float = setting(0.995, DISCOUNT)
+    lr: float = setting(0.02, POSITIVE)
+    weight_std: float = setting(0.3, NON_NEGATIVE)  # every layer's weights start N(0, weight_std)
+    bias_init: float = 0.1
+
+
+@dataclass
+class ExplorationConfig:
+    name: str = MISSING
+
+
+@dataclass
+class PlanningExploration(ExplorationConfig):
+    """Explorers whose exploring steps plan with a dynamics model towards the rarest predicted state."""
+
+    window: int = setting(50, Rule(lambda v: _is_int(v) and v >= 2, "an integer >= 2 (the paper uses 50)"))
+    horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
+    model_error_threshold: Optional[float] = setting(None, NON_NEGATIVE.or_none())  # random until the model is this good
+
+
+@dataclass
+class GaussianExploration(PlanningExploration):
+    name: str = "gaussian"  # the paper: Gaussian fitted to the window
+
+
+@dataclass
+class KernelExploration(PlanningExploration):
+    name: str = "kernel"  # Oh et al. (2015): Gaussian-kernel similarity to the window
+    bandwidth: float = setting(0.1, POSITIVE)
+
+
+EXPLORERS: dict[str, type[ExplorationConfig]] = {
+    "gaussian": GaussianExploration,
+    "kernel": KernelExploration,
+    "egreedy": dataclasses.make_dataclass("EGreedyExploration", [("name", str, "egreedy")], bases=(ExplorationConfig,)),
+    "none": dataclasses.make_dataclass("NoExploration", [("name", str, "none")], bases=(ExplorationConfig,)),
+}
+"""Every ``exploration=`` option; ``egreedy`` takes random exploring actions, ``none`` never explores."""
+
+
+@dataclass
+class DynamicsConfig:
+    name: str = setting("mlp", one_of("mlp", "oracle"))  # oracle: MountainCar's true physics
+    num_cells: list[int] = setting([64, 64], LAYERS)
+    lr: float = setting(1e-3, POSITIVE)
+    batch_size: int = setting(256, POSITIVE_INT)
+    learning_starts: int = setting(256, NON_NEGATIVE_INT)  # frames before the first update (inputs normalized then)
+    updates_per_frame: float = setting(0.25, NON_NEGATIVE)
+    max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())
+
+
+@dataclass
+class BufferConfig:
+    name: str = setting("uniform", one_of("uniform", "prioritized"))
+    size: int = setting(100_000, POSITIVE_INT)
+    alpha: float = setting(0.6, NON_NEGATIVE)  # prioritized only
+    beta: float = setting(0.4, NON_NEGATIVE)
+
+
+@dataclass
+class CollectorConfig:
+    frames_per_batch: int = setting(16, POSITIVE_INT)  # frames collected between two rounds of updates
+
+
+@dataclass
+class LoggerConfig:
+    backend: str = setting("csv", one_of("csv", "wandb", "none"))  # CSV tables are always written
+    mode: str = setting("offline", one_of("offline", "online"))  # wandb only; WANDB_MODE wins
+    project: str = "torchrl-mbe"
+    log_every_updates: int = setting(250, NON_NEGATIVE_INT)  # 0: no updates.csv rows
+
+
+@dataclass
+class TrainConfig:
+    episodes: int = setting(400, POSITIVE_INT)  # budget in episodes
+    max_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # optional cap on frames
+    checkpoint_every_frames: int = setting(20_000, POSITIVE_INT)
+    save_visited_states: bool = False  # write visited_states.npy (the coverage experiment)
+    stop_when_solved: bool = False  # end at the first periodic evaluation at or above the solved threshold
+
+
+@dataclass
+class EvalConfig:
+    every_frames: int = setting(20_000, POSITIVE_INT)  # periodic greedy evaluation
+    episodes: int = setting(10, NON_NEGATIVE_INT)
+    final_episodes: int = setting(100, NON_NEGATIVE_INT)  # greedy episodes at the end; 0 skips
+
+
+@dataclass
+class Config:
+    """The root of the schema (``base_config``)."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    algo: Any = MISSING  # DQNConfig or ReinforceConfig
+    exploration: Any = MISSING  # an EXPLORERS entry
+    dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
+    buffer: BufferConfig = field(default_factory=BufferConfig)
+    collector: CollectorConfig = field(default_factory=CollectorConfig)
+    logger: LoggerConfig = field(default_factory=LoggerConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    seed: int = setting(0, NON_NEGATIVE_INT)
+    device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
+    tag: str = "default"  # part of the run directory; presets set their own
+    resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
+    progress_bar: bool = True
+    torch_threads: Optional[int] = setting(1, POSITIVE_INT.or_none())  # null keeps torch's default
+    compile: bool = False  # torch.compile the update step (falls back to eager if compilation fails)
+
+
+def register_configs() -> None:
+    """Stores the schema and every group option in Hydra's ``ConfigStore`` (idempotent)."""
+    store = ConfigStore.instance()
+    store.store(name="base_config", node=Config)
+    store.store(group="algo", name="dqn", node=DQNConfig)
+    store.store(group="algo", name="reinforce", node=ReinforceConfig)
+    for name, schema in EXPLORERS.items():
+        store.store(group="exploration", name=name, node=schema)
+    for name in ("mlp", "oracle"):
+        store.store(group="dynamics", name=name, node=DynamicsConfig(name=name))
+    for name in ("uniform", "prioritized"):
+        store.store(group="buffer", name=name, node=BufferConfig(name=name))
+    for backend in ("csv", "wandb", "none"):
+        store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
+
+
+def check_config(cfg: DictConfig) -> None:
+    """Raises :class:`ConfigError` for the first bad value of a composed config.
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_mbe.app.config import Config, DQNConfig, GaussianExploration, check_config
+        >>> cfg = OmegaConf.structured(Config(algo=DQNConfig(gamma=1.5), exploration=GaussianExploration()))
+        >>> check_config(cfg)
+        Traceback (most recent call last):
+        ...
+        torchrl_mbe.app.config.ConfigError: algo.gamma=1.5: expected a discount in [0, 1].
+    """
+    config = OmegaConf.to_object(cfg)
+    _check_fields(config, "")
+    _check_together(config)
+
+
+def _check_fields(node: Any, prefix: str) -> None:
+    for spec in dataclasses.fields(node):
+        value, key = getattr(node, spec.name), prefix + spec.name
+        if dataclasses.is_dataclass(value):
+            _check_fields(value, key + ".")
+        elif "rule" in spec.metadata and not spec.metadata["rule"].test(value):
+            raise ConfigError(f"{key}={value!r}: expected {spec.metadata['rule'].accepted}.")
+
+
+def _check_together(config: Config) -> None:
+    """The rules that tie several settings together."""
+    try:
+        env_id = resolve_env_id(config.env.name)
+    except ValueError as error:
+        raise ConfigError(f"env.name={config.env.name!r}: {error}") from None
+    _check_device(config.device)
+    num_envs, frames_per_batch = config.env.num_envs, config.collector.frames_per_batch
+    if isinstance(config.algo, ReinforceConfig) and num_envs != 1:
+        raise ConfigError(f"env.num_envs={num_envs}: algo=reinforce plays one episode at a time; use env.num_envs=1.")
+    if frames_per_batch % num_envs:
+        raise ConfigError(f"collector.frames_per_batch={frames_per_batch}: expected a multiple of env.num_envs={num_envs}.")
+    if isinstance(config.algo, DQNConfig):
+        algo = config.algo
+        if algo.eps_end > algo.eps_init:
+            raise ConfigError(f"algo.eps_end={algo.eps_end}: expected at most algo.eps_init={algo.eps_init}.")
+        if algo.eps_schedule == "exponential" and algo.eps_end == 0:
+            raise ConfigError("algo.eps_end=0: the exponential schedule decays multiplicatively; expected eps_end > 0.")
+    if isinstance(config.exploration, PlanningExploration) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
+        raise ConfigError(f"dynamics=oracle: the oracle exists for MountainCar-v0 only, not {config.env.name}.")
+
+
+def _check_device(device: str) -> None:
+    accepted = "cpu, or cuda / cuda:N on a machine with a CUDA GPU"
+    try:
+        parsed = torch.device(device)
+    except RuntimeError:
+        raise ConfigError(f"device={device!r}: expected {accepted}.") from None
+    if parsed.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device={device!r}: CUDA is not available on this machine; expected {accepted}.")
+    if parsed.type == "cuda" and (parsed.index or 0) >= torch.cuda.device_count():
+        raise ConfigError(f"device={device!r}: this machine has {torch.cuda.device_count()} CUDA device(s).")
+    if parsed.type not in ("cpu", "cuda"):
+        raise ConfigError(f"device={device!r}: expected {accepted}.")
+
+
+def method_name(cfg: DictConfig) -> str:
+    """The name runs are grouped by in reports: ``dqn+gaussian``, ``explore:oracle``, ``reinforce``, ...
+
+    Runs that never update the Q-network (``algo.updates_per_frame=0``, the
+    exploration-only experiment) are named ``explore:<explorer>``. REINFORCE
+    explores by sampling its policy, so the exploration group does not apply to it.
+    """
+    if cfg.algo.name == "reinforce":
+        return "reinforce"
+    explorer = cfg.exploration.name
+    if is_planning(cfg) and cfg.dynamics.name == "oracle":
+        explorer = f"{explorer}-oracle" if explorer != "gaussian" else "oracle"
+    if cfg.algo.updates_per_frame == 0:
+        return "explore:" + ("random" if explorer == "egreedy" else explorer)
+    return f"{cfg.algo.name}+{explorer}"
+
+
+def is_planning(cfg: DictConfig) -> bool:
+    """Whether the configured explorer plans with a dynamics model."""
+    return issubclass(EXPLORERS[cfg.exploration.name], PlanningExploration)
+
+
+# Keys a resumed run may change: budgets, evaluation, logging and placement.
+_RESUMABLE_CHANGES = ("resume", "train", "eval", "logger", "progress_bar", "device", "torch_threads", "compile")
+
+
+def config_differences(saved: dict, current: DictConfig) -> list[str]:
+    """``key: saved -> current`` for every setting that differs, budgets and logging aside."""
+    now = OmegaConf.to_container(current, resolve=True)
+    saved_flat, now_flat = _flatten(saved), _flatten(now)
+    keys = sorted(set(saved_flat) | set(now_flat))
+    return [
+        f"{key}: {saved_flat.get(key, '<absent>')} -> {now_flat.get(key, '<absent>')}"
+        for key in keys
+        if key.split(".")[0] not in _RESUMABLE_CHANGES and saved_flat.get(key) != now_flat.get(key)
+    ]
+
+
+def config_id(cfg: DictConfig) -> str:
+    """A short fingerprint of everything that shapes a run's result except its seed.
+
+    Runs with the same ``config_id`` ran the same experiment; the report groups by it.
+    """
+    settings = {key: value for key, value in _flatten(OmegaConf.to_container(cfg, resolve=True)).items()}
+    shaping = {key: value for key, value in settings.items() if key != "seed" and key.split(".")[0] not in _PLACEMENT}
+    return hashlib.sha1(json.dumps(shaping, sort_keys=True, default=str).encode()).hexdigest()[:8]
+
+
+# Keys that change where and how a run is shown, not what it computes.
+_PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag")
+
+
+def _flatten(tree: dict, prefix: str = "") -> dict:
+    flat = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+register_configs()
+if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
+    OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))

@@ -1,0 +1,419 @@
+"""A training run's life, shared by every algorithm's loop: open or resume, record, evaluate, checkpoint, finish.
+
+An algorithm's loop (:mod:`torchrl_mbe.app.dqn`, :mod:`torchrl_mbe.app.reinforce`)
+builds its agent, calls :func:`open_run`, and for every batch of frames calls
+:func:`record_frames` (counters, episode log), learns, then calls
+:func:`evaluate_and_checkpoint_if_due` (periodic greedy evaluation, best policy,
+checkpoint); it ends with :func:`finish_run`. The files
+it writes are those of :mod:`torchrl_mbe.rundir`.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import signal
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+from tqdm.auto import tqdm
+
+from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name
+from torchrl_mbe.app.loggers import RunLogger
+from torchrl_mbe.envs import finished_episodes, make_env, reached_goal, resolve_env_id, task_of
+from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, VISITED_EPISODES, VISITED_STATES
+
+__all__ = [
+    "Agent",
+    "Progress",
+    "Run",
+    "RunFinished",
+    "StopOnInterrupt",
+    "open_run",
+    "record_frames",
+    "evaluate_and_checkpoint_if_due",
+    "finish_run",
+    "evaluate",
+    "play_episode",
+    "optimizer_step",
+    "CHECKPOINT_FORMAT",
+]
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = 2
+"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1)."""
+
+
+class Agent(Protocol):
+    """What the run needs of an algorithm's agent."""
+
+    actor: TensorDictModuleBase  # the greedy actor (evaluation, best policy)
+
+    @property
+    def eps(self) -> float: ...
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...
+
+
+class RunFinished(Exception):
+    """``resume=true`` on a run that already spent its budget: nothing to do; carries its summary."""
+
+    def __init__(self, summary: dict) -> None:
+        super().__init__("finished")
+        self.summary = summary
+
+
+@dataclass
+class Progress:
+    """Counters that a checkpoint restores."""
+
+    frames: int = 0
+    episodes: int = 0
+    q_updates: int = 0
+    dynamics_updates: int = 0
+    q_update_credit: float = 0.0
+    dynamics_update_credit: float = 0.0
+    first_success_episode: int | None = None
+    wall_time_s: float = 0.0
+    dynamics_val_error: float | None = None
+    last_loss_dynamics: float | None = None
+    best_eval_return: float | None = None
+    best_eval_frames: int | None = None
+    solved_at_frames: int | None = None
+    solved_at_wall_time_s: float | None = None
+    finished: bool = False
+    visited: list = field(default_factory=list)  # (observations, episode ids) per batch, if recorded
+
+
+@dataclass
+class Run:
+    """One training run's parts: its config, environments, agent, memory, counters and logs."""
+
+    cfg: DictConfig
+    run_dir: Path
+    env_id: str
+    env: EnvBase
+    eval_env: EnvBase
+    agent: Agent
+    progress: Progress
+    logger: RunLogger
+    bar: tqdm
+    replay_buffer: Any = None  # saved with the checkpoint when the algorithm has one
+    started: float = field(default_factory=time.perf_counter)
+
+    @property
+    def solved_threshold(self) -> float | None:
+        task = task_of(self.env_id)
+        return task.solved_threshold if task is not None else None
+
+    def budget_spent(self) -> bool:
+        """Whether the training budget is used up (or the task solved, with ``train.stop_when_solved``)."""
+        train, progress = self.cfg.train, self.progress
+        if train.stop_when_solved and progress.solved_at_frames is not None:
+            return True
+        return progress.episodes >= train.episodes or (train.max_frames is not None and progress.frames >= train.max_frames)
+
+
+def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_buffer: Any = None) -> Run:
+    """Starts the run in ``run_dir``, or resumes it from its checkpoint with ``cfg.resume``.
+
+    Raises:
+        ConfigError: ``run_dir`` holds a run and ``resume`` is off; nothing to
+            resume; an unreadable checkpoint or one of another config or version.
+        RunFinished: ``resume`` on a run that already spent its (new) budget.
+    """
+    env_id = resolve_env_id(cfg.env.name)
+    eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
+    progress = _start_or_resume(cfg, run_dir, agent, replay_buffer)
+    logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
+    bar = tqdm(total=cfg.train.episodes, initial=progress.episodes, unit="ep", disable=not cfg.progress_bar)
+    run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar, replay_buffer)
+    run.started -= progress.wall_time_s
+    if cfg.resume and progress.finished:
+        if run.budget_spent():
+            logger.close()
+            raise RunFinished(json.loads((run_dir / SUMMARY).read_text()))
+        progress.finished = False
+    log.info("Run directory: %s", run_dir)
+    return run
+
+
+def _start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, replay_buffer: Any) -> Progress:
+    checkpoint_path = run_dir / CHECKPOINT
+    if not cfg.resume:
+        if checkpoint_path.exists():
+            raise ConfigError(
+                f"{run_dir} already holds a run. Pass resume=true to continue it, "
+                "or choose another directory (hydra.run.dir=... or another tag/seed)."
+            )
+        return Progress()
+    if not checkpoint_path.exists():
+        raise ConfigError(f"resume=true but {checkpoint_path} does not exist: nothing to resume.")
+    try:
+        checkpoint = torch.load(checkpoint_path, weights_only=False)
+    except Exception as error:  # a truncated or foreign file: say which, keep it
+        raise ConfigError(f"Cannot read checkpoint {checkpoint_path}: {error}") from error
+    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
+        found = checkpoint.get("format", 1) if isinstance(checkpoint, dict) else "unknown"
+        raise ConfigError(
+            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1); this version reads "
+            f"format {CHECKPOINT_FORMAT} only. Start a new run in another directory."
+        )
+    differences = config_differences(checkpoint["config"], cfg)
+    if differences:
+        raise ConfigError(
+            f"The checkpoint in {run_dir} was made with another config; differing keys: " + "; ".join(differences)
+        )
+    agent.load_state_dict(checkpoint["agent"])
+    if replay_buffer is not None:
+        replay_buffer.load_state_dict(checkpoint["replay_buffer"])
+    torch.set_rng_state(checkpoint["torch_rng"])
+    log.info("Resumed %s at %d frames, %d episodes", run_dir, checkpoint["progress"]["frames"], checkpoint["progress"]["episodes"])
+    return Progress(**checkpoint["progress"])
+
+
+class StopOnInterrupt:
+    """Turns the first Ctrl-C (SIGINT) into a request to stop at the next safe point.
+
+    The loop then saves a consistent checkpoint (every counted frame is in the
+    replay buffer) before exiting; a second Ctrl-C interrupts at once.
+    """
+
+    def __enter__(self) -> StopOnInterrupt:
+        self.requested = False
+        self._previous = signal.getsignal(signal.SIGINT)
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._request_stop)
+        return self
+
+    def _request_stop(self, signum, frame) -> None:
+        self.requested = True
+        signal.signal(signal.SIGINT, self._previous)
+        log.warning("Ctrl-C: stopping at the next safe point and saving a checkpoint (Ctrl-C again to abort now).")
+
+    def __exit__(self, *exc_info) -> None:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def record_frames(run: Run, batch: TensorDictBase) -> None:
+    """Counts the collected ``batch`` (``(time,)`` or ``(envs, time)``), logs the episodes that ended in it
+    (with the eps that acted) and records visited states if asked."""
+    progress = run.progress
+    progress.frames += batch.numel()
+    progress.wall_time_s = time.perf_counter() - run.started
+    _record_episodes(run, batch)
+    if run.cfg.train.save_visited_states:
+        _record_visited_states(batch, progress)
+
+
+def evaluate_and_checkpoint_if_due(run: Run, new_frames: int) -> None:
+    """The periodic greedy evaluation (keeping the best policy) and checkpoint, when the last ``new_frames`` crossed their period."""
+    frames, cfg = run.progress.frames, run.cfg
+    if _crossed(frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
+        _periodic_evaluation(run)
+    if _crossed(frames, new_frames, cfg.train.checkpoint_every_frames):
+        save_checkpoint(run)
+
+
+def _record_episodes(run: Run, batch: TensorDictBase) -> None:
+    """Logs every episode that ended in ``batch`` (up to the episode budget) and advances the progress bar."""
+    progress, eps = run.progress, run.agent.eps
+    for episode in finished_episodes(batch)[: max(run.cfg.train.episodes - progress.episodes, 0)]:
+        progress.episodes += 1
+        success = reached_goal(run.env_id, episode)
+        if success and progress.first_success_episode is None:
+            progress.first_success_episode = progress.episodes
+        run.logger.log(
+            "episodes",
+            {
+                "episode": progress.episodes,
+                "frames": progress.frames,
+                "return": episode.episode_return,
+                "length": episode.length,
+                "reached_goal": int(success),
+                "eps": round(eps, 5),
+                "wall_time_s": round(progress.wall_time_s, 3),
+            },
+        )
+        run.bar.update(1)
+        run.bar.set_postfix(frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}")
+
+
+def _record_visited_states(batch: TensorDictBase, progress: Progress) -> None:
+    """Keeps every state the agent arrived in (``("next", "observation")``, so goal states count) with its 1-based episode."""
+    steps = batch.transpose(0, 1) if batch.ndim == 2 else batch
+    steps = steps.reshape(-1)
+    done = steps["next", "done"].reshape(-1).long()
+    ended_before = progress.episodes - int(done.sum())
+    episode_ids = ended_before + 1 + torch.cumsum(done, 0) - done
+    progress.visited.append((steps["next", "observation"].cpu(), episode_ids.cpu()))
+
+
+def _periodic_evaluation(run: Run) -> None:
+    """Greedy evaluation; keeps the best policy so far and notes the first solved evaluation."""
+    progress = run.progress
+    result = evaluate(run.agent.actor, run.eval_env, run.cfg.eval.episodes, run.env_id)
+    _log_evaluation(result, run)
+    mean = result["eval_return_mean"]
+    if progress.best_eval_return is None or mean > progress.best_eval_return:
+        progress.best_eval_return, progress.best_eval_frames = mean, progress.frames
+        torch.save({"actor": run.agent.actor.state_dict(), "frames": progress.frames, "eval_return_mean": mean}, run.run_dir / BEST_POLICY)
+    threshold = run.solved_threshold
+    if threshold is not None and mean >= threshold and progress.solved_at_frames is None:
+        progress.solved_at_frames, progress.solved_at_wall_time_s = progress.frames, round(progress.wall_time_s, 2)
+        log.info("Solved at %d frames (%.1f s): greedy return %.1f >= %.1f", progress.frames, progress.wall_time_s, mean, threshold)
+
+
+def evaluate(actor: TensorDictModuleBase, env: EnvBase, episodes: int, env_id: str, *, description: str | None = None) -> dict:
+    """Greedy (``ExplorationType.DETERMINISTIC``) returns over ``episodes`` episodes.
+
+    With a ``description``, a progress bar says what is being evaluated.
+    """
+    returns, successes = [], []
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        for _ in tqdm(range(episodes), desc=description, unit="ep", disable=description is None, leave=False):
+            episode = finished_episodes(play_episode(env, actor))[-1]
+            returns.append(episode.episode_return)
+            successes.append(reached_goal(env_id, episode))
+    return {
+        "eval_return_mean": float(np.mean(returns)),
+        "eval_return_std": float(np.std(returns)),
+        "eval_success_rate": float(np.mean(successes)),
+    }
+
+
+def play_episode(env: EnvBase, policy: TensorDictModuleBase) -> TensorDictBase:
+    """One whole episode of ``policy`` in a single ``env``, shape ``(steps,)``, under the caller's exploration type."""
+    return env.rollout(max_steps=100_000, policy=policy, break_when_any_done=True)
+
+
+def _log_evaluation(result: dict, run: Run) -> None:
+    progress = run.progress
+    run.logger.log("evaluations", {"frames": progress.frames, "episode": progress.episodes, **result})
+    log.info("eval at %d frames: return %.1f", progress.frames, result["eval_return_mean"])
+
+
+def optimizer_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer, max_grad_norm: float | None) -> None:
+    """Backward, optional gradient-norm clipping of the optimizer's parameters, step."""
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    if max_grad_norm is not None:
+        for group in optimizer.param_groups:
+            torch.nn.utils.clip_grad_norm_(group["params"], max_grad_norm)
+    optimizer.step()
+
+
+def save_checkpoint(run: Run) -> None:
+    """Writes the checkpoint atomically (a crash mid-write keeps the previous one)."""
+    checkpoint = {
+        "format": CHECKPOINT_FORMAT,
+        "config": OmegaConf.to_container(run.cfg, resolve=True),
+        "agent": run.agent.state_dict(),
+        "replay_buffer": run.replay_buffer.state_dict() if run.replay_buffer is not None else None,
+        "progress": asdict(run.progress),
+        "torch_rng": torch.get_rng_state(),
+    }
+    partial = run.run_dir / (CHECKPOINT + ".partial")
+    torch.save(checkpoint, partial)
+    partial.replace(run.run_dir / CHECKPOINT)
+
+
+def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
+    """Saves the last checkpoint, runs the final greedy evaluation and writes the summary.
+
+    A Ctrl-C before or during the final evaluation exits with the checkpoint
+    saved and the command that continues the run.
+    """
+    run.bar.close()
+    save_checkpoint(run)
+    episodes = run.cfg.eval.final_episodes
+    final = None
+    try:
+        if not interrupt.requested and episodes:
+            final = evaluate(run.agent.actor, run.eval_env, episodes, run.env_id, description=f"final greedy evaluation ({episodes} episodes)")
+    except KeyboardInterrupt:
+        interrupt.requested = True
+    if interrupt.requested:
+        run.logger.close()
+        raise SystemExit(
+            f"Interrupted at {run.progress.frames} frames; checkpoint saved in {run.run_dir}. "
+            f"Continue with: python train.py <same overrides> resume=true hydra.run.dir={run.run_dir}"
+        )
+    if final is not None:
+        _log_evaluation(final, run)
+    run.progress.finished = True
+    save_checkpoint(run)
+    run.logger.close()
+    summary = write_summary(run, final)
+    log.info(summary_line(summary, run.run_dir))
+    return summary
+
+
+def write_summary(run: Run, final: dict | None) -> dict:
+    """``summary.json`` (see :data:`~torchrl_mbe.rundir.SUMMARY_FIELDS`) and visited states, if recorded."""
+    cfg, progress, threshold = run.cfg, run.progress, run.solved_threshold
+    final_return = final["eval_return_mean"] if final else None
+    summary = {
+        "env": run.env_id,
+        "method": method_name(cfg),
+        "seed": cfg.seed,
+        "tag": cfg.tag,
+        "config_id": config_id(cfg),
+        "frames": progress.frames,
+        "episodes": progress.episodes,
+        "q_updates": progress.q_updates,
+        "dynamics_updates": progress.dynamics_updates,
+        "wall_time_s": round(progress.wall_time_s, 2),
+        "frames_per_s": round(progress.frames / max(progress.wall_time_s, 1e-9), 1),
+        "first_success_episode": progress.first_success_episode,
+        "final_eval_return": final_return,
+        "final_eval_success_rate": final["eval_success_rate"] if final else None,
+        "best_eval_return": progress.best_eval_return,
+        "best_eval_frames": progress.best_eval_frames,
+        "solved_threshold": threshold,
+        "solved": None if final_return is None or threshold is None else final_return >= threshold,
+        "solved_at_frames": progress.solved_at_frames,
+        "solved_at_wall_time_s": progress.solved_at_wall_time_s,
+    }
+    (run.run_dir / SUMMARY).write_text(json.dumps(summary, indent=2))
+    if progress.visited:
+        observations, episode_ids = map(torch.cat, zip(*progress.visited))
+        np.save(run.run_dir / VISITED_STATES, observations.numpy().astype(np.float32))
+        np.save(run.run_dir / VISITED_EPISODES, episode_ids.numpy())
+    return summary
+
+
+def summary_line(summary: dict, run_dir: Path) -> str:
+    """One line a user reads at the end of a run: solved or not, the returns, time and where the files are."""
+    final, threshold = summary["final_eval_return"], summary["solved_threshold"]
+    if final is None:
+        verdict = "No final evaluation"
+    elif threshold is None:
+        verdict = f"Final greedy return {final:.1f}"
+    else:
+        verdict = f"{'SOLVED' if summary['solved'] else 'NOT SOLVED'}: final greedy return {final:.1f} (threshold {threshold:g})"
+    if summary["best_eval_return"] is not None:
+        verdict += f", best periodic {summary['best_eval_return']:.1f}"
+    if summary["solved_at_frames"] is not None:
+        verdict += f", first solved evaluation at {summary['solved_at_frames']} frames / {summary['solved_at_wall_time_s']:.0f} s"
+    return (
+        f"{verdict}. {summary['frames']} frames, {summary['episodes']} episodes in {summary['wall_time_s']:.0f} s "
+        f"({summary['frames_per_s']:.0f} frames/s). Run directory: {run_dir}"
+    )
+
+
+def _crossed(frames: int, new_frames: int, every: int) -> bool:
+    """Whether the last ``new_frames`` frames crossed a multiple of ``every``."""
+    return frames // every > (frames - new_frames) // every

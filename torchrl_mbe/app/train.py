@@ -1,0 +1,50 @@
+"""``train(cfg)``: checks the config, then runs the configured algorithm's loop."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import torch
+from omegaconf import DictConfig
+
+from torchrl_mbe.app.config import check_config
+from torchrl_mbe.app.dqn import train_dqn
+from torchrl_mbe.app.reinforce import train_reinforce
+from torchrl_mbe.app.run import RunFinished
+
+__all__ = ["train", "LOOPS"]
+
+log = logging.getLogger(__name__)
+
+LOOPS = {"dqn": train_dqn, "reinforce": train_reinforce}
+"""The training loop of each ``algo=`` option."""
+
+
+def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
+    """Trains the configured agent and returns the run's summary (``summary.json``).
+
+    Every config value is checked before anything is built
+    (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one).
+
+    Args:
+        cfg (DictConfig): a config composed from ``conf/`` (see ``docs/usage.md``).
+        run_dir (path, optional): where CSVs, checkpoints and the summary go;
+            defaults to Hydra's output directory.
+    """
+    check_config(cfg)
+    run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes
+    if cfg.torch_threads:
+        torch.set_num_threads(cfg.torch_threads)
+    torch.manual_seed(cfg.seed)
+    try:
+        return LOOPS[cfg.algo.name](cfg, run_dir)
+    except RunFinished as finished:
+        log.info("%s already finished its budget (raise train.episodes or train.max_frames to continue); nothing changed.", run_dir)
+        return finished.summary
+
+
+def _hydra_output_dir() -> str:
+    from hydra.core.hydra_config import HydraConfig
+
+    return HydraConfig.get().runtime.output_dir

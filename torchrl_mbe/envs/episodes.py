@@ -1,0 +1,62 @@
+"""Finished episodes in collected data, and what counts as reaching the goal."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tensordict import TensorDictBase
+
+from torchrl_mbe.envs.registry import task_of
+
+__all__ = ["Episode", "finished_episodes", "reached_goal"]
+
+@dataclass(frozen=True)
+class Episode:
+    """One finished episode: its return, length and how it ended."""
+
+    episode_return: float
+    length: int
+    terminated: bool
+    final_reward: float
+
+
+def reached_goal(env_id: str, episode: Episode) -> bool:
+    """Whether ``episode`` reached ``env_id``'s goal (its registry ``Task.goal``; the env's own termination by default).
+
+    Examples:
+        >>> from torchrl_mbe.envs.episodes import Episode, reached_goal
+        >>> reached_goal("MountainCar-v0", Episode(-120.0, 120, terminated=True, final_reward=-1.0))
+        True
+        >>> reached_goal("LunarLander-v3", Episode(-250.0, 80, terminated=True, final_reward=-100.0))
+        False
+    """
+    task = task_of(env_id)
+    rule = task.goal if task is not None else "terminated"
+    if rule == "truncated":
+        return not episode.terminated
+    if rule == "landed":
+        return episode.terminated and episode.final_reward > 0
+    return episode.terminated
+
+
+def finished_episodes(batch: TensorDictBase) -> list[Episode]:
+    """Episodes that end in a collected batch, in the order they ended.
+
+    ``batch`` is a Collector batch of shape ``(time,)`` or ``(envs, time)`` from an
+    env built by :func:`~torchrl_mbe.make_env` (``episode_reward`` and ``step_count``).
+    """
+    if batch.ndim == 2:
+        batch = batch.transpose(0, 1)  # (time, envs): episodes in time order
+    step = batch.reshape(-1)["next"]
+    done = step["done"].reshape(-1)
+    if not done.any():
+        return []
+    ended = step[done]
+    return [
+        Episode(float(episode_return), int(length), bool(terminated), float(reward))
+        for episode_return, length, terminated, reward in zip(
+            ended["episode_reward"].reshape(-1).tolist(),
+            ended["step_count"].reshape(-1).tolist(),
+            ended["terminated"].reshape(-1).tolist(),
+            ended["reward"].reshape(-1).tolist(),
+        )
+    ]

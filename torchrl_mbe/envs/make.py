@@ -1,0 +1,85 @@
+"""``make_env``: gymnasium discrete-action tasks wrapped the way a DQN needs them."""
+from __future__ import annotations
+
+from functools import partial
+from typing import Literal
+
+import torch
+from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+
+from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
+
+__all__ = ["make_env"]
+
+
+def make_env(
+    name: str,
+    *,
+    num_envs: int = 1,
+    backend: Literal["gym", "torch"] | None = None,
+    seed: int | None = None,
+    device: torch.device | str = "cpu",
+) -> TransformedEnv:
+    """An environment (or a batch of ``num_envs`` copies) ready for DQN.
+
+    Transforms: float observations (``DoubleToFloat``), ``StepCounter``
+    (``step_count``), ``InitTracker`` (``is_init``) and ``RewardSum``
+    (``episode_reward``, the running return). Actions are one-hot.
+
+    Backends:
+
+    * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a ``SerialEnv`` of them
+      (batch size ``(num_envs,)``). Not a ``ParallelEnv``: a classic-control step
+      costs microseconds, far less than the inter-process traffic, so worker
+      processes do not pay off (and this project targets 2-core machines).
+    * ``"torch"``: the copies step together as tensor operations
+      (the registry's ``Task.torch_env``, today MountainCar-v0 as
+      :class:`~torchrl_mbe.envs.mountaincar.BatchedMountainCarEnv`); batch size
+      ``(num_envs,)`` even for one copy.
+
+    The default is ``"torch"`` when ``num_envs > 1`` and the task has a torch
+    implementation, ``"gym"`` otherwise (so ``make_env(name)`` is a ``GymEnv``).
+
+    Args:
+        name (str): a short name of :data:`~torchrl_mbe.envs.registry.TASKS` or a gymnasium id.
+
+    Keyword Args:
+        num_envs (int): number of environment copies. Defaults to 1.
+        backend (str, optional): ``"gym"`` or ``"torch"``; see above.
+        seed (int, optional): seeds the environment (copies get distinct seeds).
+        device (torch.device): where the env's tensors live. Defaults to CPU.
+
+    Examples:
+        >>> from torchrl_mbe import make_env
+        >>> env = make_env("mountaincar", seed=0)
+        >>> env.observation_spec["observation"].shape, env.action_spec.space.n
+        (torch.Size([2]), 3)
+        >>> type(make_env("mountaincar", num_envs=8).base_env).__name__, make_env("cartpole", num_envs=2).batch_size
+        ('BatchedMountainCarEnv', torch.Size([2]))
+        >>> make_env("Pendulum-v1")
+        Traceback (most recent call last):
+        ...
+        ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1).
+    """
+    if int(num_envs) < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs}.")
+    env_id = resolve_env_id(name)
+    task = task_of(env_id)
+    torch_env = task.torch_env if task is not None else None
+    if backend is None:
+        backend = "torch" if num_envs > 1 and torch_env is not None else "gym"
+    if backend == "torch":
+        if torch_env is None:
+            with_torch = sorted(t.env_id for t in TASKS.values() if t.torch_env is not None)
+            raise ValueError(f"No torch implementation of {env_id}; torch backends exist for {with_torch}.")
+        base_env = torch_env(num_envs, device=device)
+    elif backend == "gym" and num_envs == 1:
+        base_env = GymEnv(env_id, device=device)
+    elif backend == "gym":
+        base_env = SerialEnv(num_envs, partial(GymEnv, env_id, device=device))
+    else:
+        raise ValueError(f"backend must be 'gym' or 'torch', got {backend!r}.")
+    env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
+    if seed is not None:
+        env.set_seed(seed)
+    return env

@@ -1,0 +1,196 @@
+"""The task registry: every per-environment fact, in one place.
+
+A :class:`Task` names a gymnasium environment the project is tested on and says
+what the rest of the code needs to know about it: its short name, when it counts
+as solved, what reaching its goal means, the box its coverage is measured in and,
+if there is one, its batched torch implementation. Adding an environment means
+adding one entry to :data:`TASKS` (and a ``conf/env/<alias>.yaml`` for the app).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import gymnasium as gym
+import numpy as np
+from torchrl.envs import EnvBase
+
+from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv
+
+__all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "task_of", "resolve_env_id"]
+
+GoalRule = Literal["terminated", "truncated", "landed"]
+
+
+@dataclass(frozen=True)
+class EnvBounds:
+    """The box coverage is measured in, and how to read an environment's state.
+
+    Args:
+        low (tuple of float): lower bound of every observation dimension.
+        high (tuple of float): upper bound of every observation dimension.
+        labels (tuple of str): a name for every observation dimension.
+        plane (tuple of int): the two dimensions of the scatter plot and of the
+            grid coverage (the paper's figures).
+        continuous_dims (tuple of int): the dimensions pairwise coverage averages over.
+        progress_dim (int, optional): a dimension whose maximum measures progress
+            towards the goal (MountainCar's position), or ``None``.
+    """
+
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    labels: tuple[str, ...]
+    plane: tuple[int, int] = (0, 1)
+    continuous_dims: tuple[int, ...] | None = None
+    progress_dim: int | None = None
+
+    @property
+    def plane_low(self) -> tuple[float, float]:
+        """Lower bounds of the two plane dimensions."""
+        return self.low[self.plane[0]], self.low[self.plane[1]]
+
+    @property
+    def plane_high(self) -> tuple[float, float]:
+        """Upper bounds of the two plane dimensions."""
+        return self.high[self.plane[0]], self.high[self.plane[1]]
+
+    @property
+    def coverage_dims(self) -> tuple[int, ...]:
+        """The dimensions pairwise coverage uses: ``continuous_dims``, else all."""
+        return tuple(range(len(self.low))) if self.continuous_dims is None else self.continuous_dims
+
+    @classmethod
+    def from_states(cls, states: np.ndarray) -> EnvBounds:
+        """Bounds fitted to the visited states themselves, for an environment without an entry.
+
+        Examples:
+            >>> import numpy as np
+            >>> from torchrl_mbe.envs.registry import EnvBounds
+            >>> EnvBounds.from_states(np.array([[0.0, 1.0], [2.0, 3.0]])).high
+            (2.0, 3.0)
+        """
+        states = np.asarray(states, dtype=np.float64).reshape(len(states), -1)
+        labels = tuple(f"dim {i}" for i in range(states.shape[1]))
+        return cls(tuple(states.min(0).tolist()), tuple(states.max(0).tolist()), labels)
+
+
+@dataclass(frozen=True)
+class Task:
+    """What the project knows about one environment.
+
+    Args:
+        alias (str): the short name used by ``make_env`` and ``conf/env/``.
+        env_id (str): the gymnasium id.
+        solved_threshold (float): average return over 100 episodes at which
+            gymnasium calls the task solved.
+        goal (str): what counts as reaching the goal in an episode:
+            ``"terminated"`` (the env's own termination), ``"truncated"`` (lasting
+            until the time limit) or ``"landed"`` (terminated with a positive last reward).
+        bounds (EnvBounds): the box coverage is measured in.
+        torch_env (type, optional): a batched torch implementation
+            (``cls(num_envs, device=...)``), used by ``make_env(..., backend="torch")``.
+    """
+
+    alias: str
+    env_id: str
+    solved_threshold: float
+    goal: GoalRule
+    bounds: EnvBounds
+    torch_env: type[EnvBase] | None = None
+
+
+TASKS: dict[str, Task] = {
+    task.alias: task
+    for task in (
+        Task(
+            "mountaincar",
+            "MountainCar-v0",
+            solved_threshold=-110.0,
+            goal="terminated",  # the car reached the flag
+            bounds=EnvBounds(low=(-1.2, -0.07), high=(0.6, 0.07), labels=("position", "velocity"), progress_dim=0),
+            torch_env=BatchedMountainCarEnv,
+        ),
+        Task(
+            "lunarlander",
+            "LunarLander-v3",
+            solved_threshold=200.0,
+            goal="landed",  # terminated at rest (+100), not crashed (-100)
+            # Fixed boxes from the observation definition and random-policy ranges; LunarLander's
+            # own observation space (velocities +-10) is far looser than anything reachable.
+            bounds=EnvBounds(
+                low=(-1.0, -0.25, -2.0, -2.5, -math.pi, -5.0, 0.0, 0.0),
+                high=(1.0, 1.75, 2.0, 1.0, math.pi, 5.0, 1.0, 1.0),
+                labels=("x", "y", "x-velocity", "y-velocity", "angle", "angular velocity", "left leg", "right leg"),
+                plane=(2, 3),
+                continuous_dims=(0, 1, 2, 3, 4, 5),
+            ),
+        ),
+        Task(
+            "acrobot",
+            "Acrobot-v1",
+            solved_threshold=-100.0,
+            goal="terminated",  # the tip swung above the line
+            bounds=EnvBounds(
+                low=(-1.0, -1.0, -1.0, -1.0, -4 * math.pi, -9 * math.pi),
+                high=(1.0, 1.0, 1.0, 1.0, 4 * math.pi, 9 * math.pi),
+                labels=("cos theta1", "sin theta1", "cos theta2", "sin theta2", "theta1 velocity", "theta2 velocity"),
+                plane=(4, 5),
+            ),
+        ),
+        Task(
+            "cartpole",
+            "CartPole-v1",
+            solved_threshold=475.0,
+            goal="truncated",  # balanced until the time limit
+            bounds=EnvBounds(
+                low=(-2.4, -3.0, -0.2095, -3.5),
+                high=(2.4, 3.0, 0.2095, 3.5),
+                labels=("cart position", "cart velocity", "pole angle", "pole angular velocity"),
+                plane=(0, 2),
+            ),
+        ),
+    )
+}
+"""The tested environments, by short name."""
+
+SUPPORTED_ENVS: dict[str, str] = {alias: task.env_id for alias, task in TASKS.items()}
+"""Short names accepted everywhere (config files, ``make_env``) and their gymnasium ids."""
+
+
+def task_of(env_id: str) -> Task | None:
+    """The registry entry of a gymnasium id, or ``None`` for an untested environment.
+
+    Examples:
+        >>> from torchrl_mbe.envs.registry import task_of
+        >>> task_of("CartPole-v1").solved_threshold
+        475.0
+    """
+    return next((task for task in TASKS.values() if task.env_id == env_id), None)
+
+
+def _supported_list() -> str:
+    return ", ".join(f"{alias} ({env_id})" for alias, env_id in SUPPORTED_ENVS.items())
+
+
+def resolve_env_id(name: str) -> str:
+    """The gymnasium id of a short name or id; one clear error for anything unsupported.
+
+    Any registered gymnasium id with a discrete action space is accepted; the
+    project is tested on the entries of :data:`TASKS`.
+
+    Examples:
+        >>> from torchrl_mbe.envs.registry import resolve_env_id
+        >>> resolve_env_id("acrobot")
+        'Acrobot-v1'
+    """
+    env_id = SUPPORTED_ENVS.get(name.lower(), name)
+    if env_id not in gym.registry:
+        raise ValueError(f"Unknown environment {name!r}. Supported: {_supported_list()}.")
+    action_space = gym.spec(env_id).make().action_space
+    if not isinstance(action_space, gym.spaces.Discrete):
+        raise ValueError(
+            f"{env_id} has a {type(action_space).__name__} action space; model-based exploration "
+            f"plans over a discrete action set. Supported: {_supported_list()}."
+        )
+    return env_id

@@ -1,0 +1,20 @@
+"""TorchRL modules: novelty scorers, the dynamics model, the planner and the exploration policies."""
+from torchrl_mbe.modules.dynamics import DynamicsModel
+from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
+from torchrl_mbe.modules.networks import init_linear_layers, make_per_action_mlp
+from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.novelty import GaussianKernelNovelty, RollingGaussianDensity, RollingWindowNovelty
+from torchrl_mbe.modules.planner import NoveltyPlanner
+
+__all__ = [
+    "AnnealedEGreedyModule",
+    "DynamicsModel",
+    "GaussianKernelNovelty",
+    "ModelBasedExplorationPolicy",
+    "NoveltyPlanner",
+    "RollingGaussianDensity",
+    "RollingWindowNovelty",
+    "Standardize",
+    "init_linear_layers",
+    "make_per_action_mlp",
+]

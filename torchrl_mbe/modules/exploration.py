@@ -1,0 +1,203 @@
+"""Exploration policies: TorchRL's e-greedy with a choice of schedule, and its model-based variant."""
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from tensordict import NestedKey, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from tensordict.utils import expand_as_right
+from torchrl.data import TensorSpec
+from torchrl.envs.utils import ExplorationType, exploration_type
+from torchrl.modules import EGreedyModule
+
+from torchrl_mbe.modules.planner import NoveltyPlanner
+
+__all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy"]
+
+
+class AnnealedEGreedyModule(EGreedyModule):
+    """TorchRL's :class:`~torchrl.modules.EGreedyModule` with a choice of schedule.
+
+    The plain-DQN baseline, and the base of :class:`ModelBasedExplorationPolicy`:
+    both anneal eps with this class's :meth:`step`, so that only the exploring
+    rule differs between them. ``schedule="linear"`` is ``EGreedyModule``'s;
+    ``"exponential"`` multiplies eps by a constant per step (the paper's
+    ``eps *= 0.9995``), the constant chosen so that ``eps_end`` is reached after
+    ``annealing_num_steps`` steps.
+
+    Args:
+        spec (TensorSpec): the action spec (random actions are drawn from it).
+        eps_init (float): initial exploration probability. Defaults to 1.0.
+        eps_end (float): final exploration probability. Defaults to 0.01 (the paper).
+        annealing_num_steps (int): steps for eps to reach ``eps_end``. Defaults to 10_000.
+
+    Keyword Args:
+        schedule (str): ``"linear"`` or ``"exponential"``. Defaults to ``"linear"``.
+        action_key (NestedKey): the action entry. Defaults to ``"action"``.
+        device (torch.device, optional): where the eps buffers live.
+
+    Examples:
+        >>> from torchrl.data import OneHot
+        >>> from torchrl_mbe import AnnealedEGreedyModule
+        >>> module = AnnealedEGreedyModule(OneHot(3), 1.0, 0.01, 9209, schedule="exponential")
+        >>> module.step(1); round(module.eps.item(), 4)
+        0.9995
+    """
+
+    def __init__(
+        self,
+        spec: TensorSpec,
+        eps_init: float = 1.0,
+        eps_end: float = 0.01,
+        annealing_num_steps: int = 10_000,
+        *,
+        schedule: Literal["linear", "exponential"] = "linear",
+        action_key: NestedKey = "action",
+        device: torch.device | str | None = None,
+    ) -> None:
+        _check_schedule(eps_init, eps_end, annealing_num_steps, schedule)
+        super().__init__(
+            spec, float(eps_init), float(eps_end), int(annealing_num_steps), action_key=action_key, device=device
+        )
+        self.schedule = schedule
+
+    def step(self, frames: int = 1) -> None:
+        """Anneals eps by ``frames`` steps of the schedule; eps never goes below ``eps_end``."""
+        if self.schedule == "linear":
+            annealed = self.eps - frames * (self.eps_init - self.eps_end) / self.annealing_num_steps
+        else:
+            decay = (self.eps_end / self.eps_init) ** (1.0 / self.annealing_num_steps)
+            annealed = self.eps * decay**frames
+        self.eps.copy_(torch.maximum(self.eps_end, annealed).to(self.eps.dtype))
+
+
+class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
+    """Epsilon-greedy policy whose exploring steps go to the rarest predicted state.
+
+    "DQN with Model-Based Exploration" (Gou & Liu): with probability ``eps`` a batch
+    element explores and takes the :class:`~torchrl_mbe.NoveltyPlanner`'s action,
+    otherwise the actor's greedy action. It follows TorchRL's
+    :class:`~torchrl.modules.EGreedyModule`:
+
+    * it explores only under ``ExplorationType.RANDOM`` (or when none is set); under
+      ``DETERMINISTIC`` (evaluation) it is exactly ``actor`` and leaves the novelty
+      window untouched;
+    * it *is* an :class:`AnnealedEGreedyModule`: ``eps`` is a buffer and
+      :meth:`step` anneals it, linearly (as ``EGreedyModule``) or multiplicatively
+      (the paper: ``eps *= 0.9995`` per step);
+    * every visited observation is pushed into the planner's novelty window before
+      planning, so after a rollout the window holds the last F visited states.
+
+    Optional warm-up (the original code only trusted its model once the prediction
+    error fell below a threshold): with ``model_error_threshold`` set, exploring
+    steps take uniformly random actions until :meth:`report_model_error` receives an
+    error at or below the threshold; from then on the planner decides.
+
+    Keep the policy on the collector's device: a :class:`~torchrl.collectors.Collector`
+    that has to move the policy works on a copy and syncs buffers from this module,
+    which would overwrite the window the copy filled.
+
+    Args:
+        actor (TensorDictModuleBase): greedy actor, e.g. :class:`~torchrl.modules.QValueActor`.
+        planner (NoveltyPlanner): proposes exploring actions.
+        eps_init (float): initial exploration probability. Defaults to 1.0.
+        eps_end (float): final exploration probability. Defaults to 0.01 (the paper).
+        annealing_num_steps (int): steps for eps to reach ``eps_end``. Defaults to 10_000.
+
+    Keyword Args:
+        schedule (str): ``"linear"`` or ``"exponential"``. Defaults to ``"linear"``.
+        model_error_threshold (float, optional): enables the random warm-up.
+        action_key (NestedKey): the action entry. Defaults to ``"action"``.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.envs import GymEnv
+        >>> from torchrl.modules import MLP, QValueActor
+        >>> from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity
+        >>> env = GymEnv("MountainCar-v0")
+        >>> actor = QValueActor(MLP(out_features=3, num_cells=[48]), spec=env.action_spec, in_keys=["observation"])
+        >>> planner = NoveltyPlanner(DynamicsModel(2, env.action_spec), RollingGaussianDensity(2, window=50), env.action_spec)
+        >>> policy = ModelBasedExplorationPolicy(actor, planner, eps_init=1.0, eps_end=0.01, annealing_num_steps=1000)
+        >>> rollout = env.rollout(20, policy)
+        >>> planner.novelty.num_stored
+        20
+        >>> policy.step(500); round(policy.eps.item(), 3)
+        0.505
+    """
+
+    def __init__(
+        self,
+        actor: TensorDictModuleBase,
+        planner: NoveltyPlanner,
+        eps_init: float = 1.0,
+        eps_end: float = 0.01,
+        annealing_num_steps: int = 10_000,
+        *,
+        schedule: Literal["linear", "exponential"] = "linear",
+        model_error_threshold: float | None = None,
+        action_key: NestedKey = "action",
+    ) -> None:
+        device = planner.candidate_actions.device
+        super().__init__(
+            planner.action_spec,
+            eps_init,
+            eps_end,
+            annealing_num_steps,
+            schedule=schedule,
+            action_key=action_key,
+            device=device,
+        )
+        self.actor = actor
+        self.planner = planner
+        self.model_error_threshold = model_error_threshold
+        self.observation_key = planner.in_keys[0]
+        self.in_keys = list(dict.fromkeys([*actor.in_keys, self.observation_key]))
+        self.out_keys = list(actor.out_keys)
+        self.register_buffer("model_trusted", torch.tensor(model_error_threshold is None, device=device))
+
+    @property
+    def novelty(self):
+        """The planner's novelty scorer (its window holds the visited states)."""
+        return self.planner.novelty
+
+    def report_model_error(self, error: float) -> bool:
+        """Feeds the dynamics model's current prediction error to the warm-up switch.
+
+        Returns whether the planner is trusted from now on (always ``True``
+        without ``model_error_threshold``; once trusted, it stays trusted).
+        """
+        if self.model_error_threshold is not None and error <= self.model_error_threshold:
+            self.model_trusted.fill_(True)
+        return bool(self.model_trusted)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        tensordict = self.actor(tensordict)
+        if exploration_type() not in (ExplorationType.RANDOM, None):
+            return tensordict
+        self.novelty.update(tensordict.get(self.observation_key))
+        explore = torch.rand(tensordict.batch_size, device=self.eps.device) < self.eps
+        if explore.any():
+            greedy = tensordict.get(self.action_key)
+            exploring = self._exploring_action(tensordict).to(greedy.dtype)
+            tensordict.set(self.action_key, torch.where(expand_as_right(explore, greedy), exploring, greedy))
+        return tensordict
+
+    def _exploring_action(self, tensordict: TensorDictBase) -> torch.Tensor:
+        candidates = self.planner.candidate_actions
+        if not self.model_trusted:
+            return candidates[torch.randint(len(candidates), tensordict.batch_size, device=candidates.device)]
+        planned = self.planner(tensordict.select(self.observation_key))
+        return planned.get(self.planner.out_keys[0])
+
+
+def _check_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, schedule: str) -> None:
+    if not 0.0 <= eps_end <= eps_init <= 1.0:
+        raise ValueError(f"Expected 0 <= eps_end <= eps_init <= 1, got eps_init={eps_init}, eps_end={eps_end}.")
+    if int(annealing_num_steps) < 1:
+        raise ValueError(f"annealing_num_steps must be >= 1, got {annealing_num_steps}.")
+    if schedule not in ("linear", "exponential"):
+        raise ValueError(f"schedule must be 'linear' or 'exponential', got {schedule!r}.")
+    if schedule == "exponential" and eps_end <= 0.0:
+        raise ValueError("The exponential schedule needs eps_end > 0 (it decays multiplicatively).")
+

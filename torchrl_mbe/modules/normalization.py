@@ -1,0 +1,46 @@
+"""Feature standardization whose statistics are module buffers."""
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+__all__ = ["Standardize"]
+
+
+class Standardize(nn.Module):
+    """``(x - loc) / scale`` per feature; identity until :meth:`fit`.
+
+    The statistics are buffers, so they are saved in ``state_dict`` beside the
+    weights they feed and follow ``.to(device)``.
+
+    Args:
+        num_features (int): size of the last dimension.
+
+    Keyword Args:
+        device (torch.device, optional): where the buffers live.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules import Standardize
+        >>> standardize = Standardize(2)
+        >>> standardize.fit(torch.tensor([[0.0, 10.0], [2.0, 30.0]]))
+        >>> standardize(torch.tensor([1.0, 20.0]))
+        tensor([0., 0.])
+    """
+
+    def __init__(self, num_features: int, *, device: torch.device | str | None = None) -> None:
+        super().__init__()
+        self.register_buffer("loc", torch.zeros(num_features, device=device))
+        self.register_buffer("scale", torch.ones(num_features, device=device))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        return (features - self.loc) / self.scale
+
+    @torch.no_grad()
+    def fit(self, samples: torch.Tensor, min_scale: float = 1e-6) -> None:
+        """Sets ``loc``/``scale`` to the mean and standard deviation of ``samples`` (``(N, num_features)``)."""
+        samples = samples.reshape(-1, self.loc.numel())
+        if samples.shape[0] < 2:
+            raise ValueError("Standardize.fit needs at least two samples.")
+        self.loc.copy_(samples.mean(0))
+        self.scale.copy_(samples.std(0).clamp_min(min_scale))

@@ -1,0 +1,91 @@
+"""The report's figures: learning curves (the paper's Figures 2 and 4) and visited states (Figures 1 and 3)."""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from torchrl_mbe.envs.registry import EnvBounds
+from torchrl_mbe.report.metrics import running_average
+from torchrl_mbe.report.runs import Run, solved_threshold
+
+__all__ = ["plot_learning_curves", "plot_coverage", "save_figure"]
+
+logger = logging.getLogger(__name__)
+
+
+def save_figure(fig: Figure, path: Path) -> Path:
+    FigureCanvasAgg(fig)
+    fig.savefig(path, dpi=120)
+    return path
+
+
+def plot_learning_curves(
+    env: str, groups: dict[str, list[Run]], colors: dict[str, str], window: int, path: Path
+) -> Path | None:
+    """Running average return per episode, mean over seeds with a min-max band; ``None`` if no run has episodes.
+
+    Runs of unequal length are not cut: past a run's last episode, the mean and
+    band are over the runs still going, and the label says so.
+    """
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.add_subplot()
+    plotted = False
+    for method, runs in groups.items():
+        curves = [running_average(r.returns, window) for r in runs if len(r.returns)]
+        if not curves:
+            continue
+        length = max(len(c) for c in curves)
+        stacked = np.full((len(curves), length), np.nan)
+        for row, curve in zip(stacked, curves):
+            row[: len(curve)] = curve
+        episodes = np.arange(1, length + 1)
+        seeds = len({run.seed for run in runs})
+        label = f"{method} ({seeds} seed{'s' * (seeds > 1)}"
+        label += ")" if min(len(c) for c in curves) == length else f"; after episode {min(len(c) for c in curves)}: runs still going)"
+        ax.plot(episodes, np.nanmean(stacked, 0), color=colors[method], label=label)
+        ax.fill_between(episodes, np.nanmin(stacked, 0), np.nanmax(stacked, 0), color=colors[method], alpha=0.2, linewidth=0)
+        plotted = True
+    if not plotted:
+        return None
+    threshold = solved_threshold(groups)
+    if threshold is not None:
+        ax.axhline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved ({threshold:g})")
+    ax.set_xlabel("training episode")
+    ax.set_ylabel(f"return, running average of last {window} episodes")
+    ax.set_title(f"{env}: learning curves (line: mean over seeds, band: min to max)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    return save_figure(fig, path)
+
+
+def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: EnvBounds, bins: int, path: Path) -> Path:
+    """One scatter panel per method, of its best-covering run: ``best[method] = (run, coverage, num_seeds)``."""
+    x_dim, y_dim = bounds.plane
+    fig = Figure(figsize=(4.2 * len(best) + 1.0, 4.4), layout="constrained")
+    axes = fig.subplots(1, len(best), squeeze=False, sharex=True, sharey=True)[0]
+    norm = Normalize(1, max(int(run.visited_episodes.max(initial=1)) for run, _, _ in best.values()))
+    scatter = None
+    for ax, (method, (run, coverage, num_seeds)) in zip(axes, best.items()):
+        states = run.visited_states
+        scatter = ax.scatter(
+            states[:, x_dim], states[:, y_dim], c=run.visited_episodes, cmap="viridis", norm=norm,
+            s=2, linewidths=0, rasterized=True,
+        )
+        ax.set_title(f"{method}\ncoverage {coverage:.1%} (seed {run.seed}, best of {num_seeds})", fontsize=10)
+        ax.set_xlabel(bounds.labels[x_dim])
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(bounds.labels[y_dim])
+    all_states = np.concatenate([run.visited_states for run, _, _ in best.values()])
+    for set_lim, dim in ((axes[0].set_xlim, x_dim), (axes[0].set_ylim, y_dim)):
+        set_lim(min(bounds.low[dim], all_states[:, dim].min()), max(bounds.high[dim], all_states[:, dim].max()))
+    fig.colorbar(scatter, ax=list(axes), label="episode", ticks=MaxNLocator(integer=True))
+    fig.suptitle(f"{env}: visited states ({bins}x{bins} grid coverage)")
+    return save_figure(fig, path)
+
+

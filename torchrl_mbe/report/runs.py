@@ -1,0 +1,276 @@
+"""Reading run directories (the format of :mod:`torchrl_mbe.rundir`) and grouping runs for the report.
+
+Every directory under ``RUNS_DIR`` (at any depth, so Hydra multirun sweeps work)
+that holds a ``summary.json`` is one run. A run directory contains:
+
+- ``summary.json``: ``env``, ``method``, ``seed`` and ``solved_threshold`` (number,
+  or null for a task without one) are required; ``frames``, ``episodes``,
+  ``wall_time_s`` and ``final_eval_return`` (number or null) are type-checked when
+  present, other fields are ignored. Methods named ``explore:<name>`` are
+  exploration-only runs, every other method is a learning run.
+- ``episodes.csv``: one row per finished training episode, in order, with at
+  least the columns ``episode`` (1, 2, ...), ``return`` and ``reached_goal`` (0/1).
+- ``evaluations.csv`` (optional, may be empty): greedy evaluations with at least
+  ``frames`` and ``eval_return_mean``; its last row stands in for the final
+  evaluation when ``final_eval_return`` is null.
+- ``visited_states.npy`` with ``visited_episodes.npy`` (exploration runs,
+  optional): every visited observation ``(num_steps, obs_dim)`` and the 1-based
+  episode of each.
+
+Runs are grouped by ``(env, method)`` across seeds. The report directory gets
+``learning_curves_<env>.png`` (the paper's Figures 2 and 4),
+``coverage_<env>.png`` (Figures 1 and 3) and ``results.md``. A malformed file
+stops the report with a message naming it: silently dropping a run would hide data.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from torchrl_mbe.envs.registry import EnvBounds, task_of
+from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverage
+from torchrl_mbe.rundir import EXPLORATION_PREFIX, SUMMARY, SUMMARY_FIELDS, VISITED_EPISODES, VISITED_STATES, table_file
+
+__all__ = ["RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "file_stem", "method_key"]
+
+logger = logging.getLogger(__name__)
+
+class RunFormatError(ValueError):
+    """A runs directory that cannot be reported on: missing, without runs, or with a malformed file."""
+
+
+@dataclass
+class Run:
+    """One finished run as read from its directory (see the module docstring for the files)."""
+
+    path: Path
+    env: str
+    method: str
+    seed: int
+    solved_threshold: float | None
+    final_eval_return: float | None
+    returns: np.ndarray
+    reached_goal: np.ndarray
+    visited_states: np.ndarray | None = None
+    visited_episodes: np.ndarray | None = None
+    tag: str | None = None  # the experiment the run belongs to (summaries of 0.1.0 lack both)
+    config_id: str | None = None
+
+    @property
+    def is_exploration(self) -> bool:
+        """Whether this is an exploration-only run (``method`` starts with ``explore:``)."""
+        return self.method.startswith(EXPLORATION_PREFIX)
+
+    def stats(self, window: int) -> EpisodeStats:
+        """:func:`~torchrl_mbe.report.metrics.episode_stats` of the run's episode table."""
+        return episode_stats(self.returns, self.reached_goal, self.solved_threshold, window=window)
+
+
+def _read_summary(path: Path) -> dict:
+    try:
+        summary = json.loads(path.read_text())
+    except ValueError as err:  # JSONDecodeError, UnicodeDecodeError
+        raise RunFormatError(f"{path}: not valid JSON ({err}).") from None
+    if not isinstance(summary, dict):
+        raise RunFormatError(f"{path}: expected a JSON object, got {type(summary).__name__}.")
+    for name, (check, expected, required) in SUMMARY_FIELDS.items():
+        if name not in summary:
+            if required:
+                raise RunFormatError(f"{path}: missing field {name!r}.")
+        elif not check(summary[name]):
+            raise RunFormatError(f"{path}: field {name!r} must be {expected}, got {summary[name]!r}.")
+    return summary
+
+
+def _read_csv(path: Path, columns: Sequence[str]) -> dict[str, np.ndarray]:
+    """The numeric ``columns`` of a CSV file with a header row; other columns are ignored."""
+    values: dict[str, list[float]] = {name: [] for name in columns}
+    with path.open(newline="") as file:
+        reader = csv.DictReader(file)
+        try:
+            header = reader.fieldnames or []
+            missing = [name for name in columns if name not in header]
+            if missing:
+                found = ",".join(header) or "(none)"
+                raise RunFormatError(f"{path}: header {found} lacks column(s) {', '.join(missing)}.")
+            for row in reader:
+                for name in columns:
+                    values[name].append(_parse_number(row[name], path, reader.line_num, name))
+        except (UnicodeDecodeError, csv.Error) as err:
+            raise RunFormatError(f"{path}: not a readable CSV file ({err}).") from None
+    return {name: np.asarray(column) for name, column in values.items()}
+
+
+def _parse_number(text: str | None, path: Path, line: int, column: str) -> float:
+    if text is None:
+        raise RunFormatError(f"{path}: line {line} has no value in column {column!r}.")
+    try:
+        return float(text)
+    except ValueError:
+        raise RunFormatError(f"{path}: line {line}, column {column!r}: {text!r} is not a number.") from None
+
+
+def _read_episodes(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise RunFormatError(f"{path}: missing (every run directory needs episodes.csv beside summary.json).")
+    table = _read_csv(path, ["episode", "return", "reached_goal"])
+    if not np.array_equal(table["episode"], np.arange(1, len(table["episode"]) + 1)):
+        raise RunFormatError(f"{path}: column 'episode' must count 1, 2, 3, ... one row per episode.")
+    if not np.isin(table["reached_goal"], (0.0, 1.0)).all():
+        raise RunFormatError(f"{path}: column 'reached_goal' must hold only 0 or 1.")
+    if not np.isfinite(table["return"]).all():
+        raise RunFormatError(f"{path}: column 'return' holds NaN or infinite values.")
+    return table
+
+
+def _last_evaluation(path: Path) -> float | None:
+    if not path.is_file() or path.stat().st_size == 0:
+        return None
+    means = _read_csv(path, ["frames", "eval_return_mean"])["eval_return_mean"]
+    return float(means[-1]) if len(means) else None
+
+
+def _load_array(path: Path) -> np.ndarray:
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as err:
+        raise RunFormatError(f"{path}: not a readable .npy array ({err}).") from None
+
+
+def _read_visited(run_dir: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    states_path, episodes_path = run_dir / VISITED_STATES, run_dir / VISITED_EPISODES
+    if not states_path.is_file():
+        return None, None
+    if not episodes_path.is_file():
+        raise RunFormatError(f"{episodes_path}: missing (visited_states.npy needs it beside it).")
+    states, episodes = _load_array(states_path), _load_array(episodes_path)
+    if states.ndim != 2 or not np.issubdtype(states.dtype, np.number) or not np.isfinite(states).all():
+        raise RunFormatError(
+            f"{states_path}: expected finite numbers of shape (num_steps, obs_dim), got {states.dtype} {states.shape}."
+        )
+    if episodes.shape != (len(states),) or not np.issubdtype(episodes.dtype, np.integer):
+        raise RunFormatError(
+            f"{episodes_path}: expected integers of shape ({len(states)},) to match visited_states.npy, "
+            f"got {episodes.dtype} {episodes.shape}."
+        )
+    if len(states) == 0:
+        logger.warning("%s is empty; the run counts as one without visited states.", states_path)
+        return None, None
+    return states, episodes
+
+
+def _read_run(run_dir: Path) -> Run:
+    summary = _read_summary(run_dir / SUMMARY)
+    episodes = _read_episodes(run_dir / table_file("episodes"))
+    final_eval = summary.get("final_eval_return")
+    if final_eval is None:
+        final_eval = _last_evaluation(run_dir / table_file("evaluations"))
+    states, visited_episodes = _read_visited(run_dir)
+    return Run(
+        path=run_dir,
+        env=summary["env"],
+        method=summary["method"],
+        seed=summary["seed"],
+        solved_threshold=summary["solved_threshold"],
+        final_eval_return=None if final_eval is None else float(final_eval),
+        returns=episodes["return"],
+        reached_goal=episodes["reached_goal"].astype(bool),
+        visited_states=states,
+        visited_episodes=visited_episodes,
+        tag=summary.get("tag"),
+        config_id=summary.get("config_id"),
+    )
+
+
+def load_runs(runs_dir: str | Path) -> list[Run]:
+    """Every run under ``runs_dir`` (any directory holding a ``summary.json``, at any depth).
+
+    Raises:
+        RunFormatError: if ``runs_dir`` is missing, holds no run, or a run's file is malformed.
+
+    Examples:
+        >>> load_runs("/no/such/dir")
+        Traceback (most recent call last):
+        ...
+        torchrl_mbe.report.runs.RunFormatError: runs directory /no/such/dir does not exist.
+    """
+    runs_dir = Path(runs_dir)
+    if not runs_dir.is_dir():
+        raise RunFormatError(f"runs directory {runs_dir} does not exist.")
+    runs = [_read_run(summary.parent) for summary in sorted(runs_dir.rglob(SUMMARY))]
+    if not runs:
+        raise RunFormatError(f"no runs under {runs_dir}: no summary.json found at any depth.")
+    seen: dict[tuple[str, str, int], Path] = {}
+    for run in runs:
+        key = (run.env, run.method, run.seed)
+        if key in seen:
+            logger.warning("%s and %s are both %s seed %d; both count.", seen[key], run.path, run.method, run.seed)
+        seen[key] = run.path
+    logger.info("Read %d runs from %s.", len(runs), runs_dir)
+    return runs
+
+
+
+
+def file_stem(env: str) -> str:
+    return env.replace("/", "_")
+
+
+
+
+_METHOD_ORDER = (
+    "explore:random", "explore:kernel", "explore:gaussian", "explore:oracle",
+    "dqn+gaussian", "dqn+kernel", "dqn+egreedy", "dqn+none", "reinforce",
+)
+"""Methods in the paper's order (baselines beside the proposal); others follow alphabetically."""
+
+
+def method_key(method: str) -> tuple[int, str]:
+    return (_METHOD_ORDER.index(method) if method in _METHOD_ORDER else len(_METHOD_ORDER), method)
+
+
+def group_runs(runs: Sequence[Run]) -> dict[str, list[Run]]:
+    """Runs of one experiment per group, in :data:`_METHOD_ORDER`, each group's runs sorted by seed.
+
+    An experiment is a method run with one config (``tag`` and ``config_id``); the
+    group is labelled by its method, or ``method [tag config_id]`` when the method
+    was run with several configs, so that runs of different configs never merge.
+    """
+    configs: dict[str, set] = {}
+    for run in runs:
+        configs.setdefault(run.method, set()).add((run.tag, run.config_id))
+    groups: dict[str, list[Run]] = {}
+    for run in sorted(runs, key=lambda r: (method_key(r.method), r.tag or "", r.config_id or "", r.seed)):
+        label = run.method if len(configs[run.method]) == 1 else f"{run.method} [{run.tag} {run.config_id}]"
+        groups.setdefault(label, []).append(run)
+    return groups
+
+
+def env_bounds(env: str, runs: Sequence[Run]) -> tuple[EnvBounds | None, bool]:
+    """The coverage box of ``env`` and whether it was fitted to the data.
+
+    The registry's box (``Task.bounds``) if there is one, else bounds fitted to all the
+    env's visited states, else ``None``.
+    """
+    task = task_of(env)
+    if task is not None:
+        return task.bounds, False
+    states = [r.visited_states for r in runs if r.visited_states is not None]
+    return (EnvBounds.from_states(np.concatenate(states)), True) if states else (None, False)
+
+
+def solved_threshold(groups: dict[str, list[Run]]) -> float | None:
+    """The env's solved threshold, as its first run recorded it."""
+    return next(iter(groups.values()))[0].solved_threshold
+
+
+def plane_coverage(run: Run, bounds: EnvBounds, bins: int) -> float:
+    return grid_coverage(run.visited_states, bounds.plane_low, bounds.plane_high, bins, dims=bounds.plane)
+
+

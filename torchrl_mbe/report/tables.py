@@ -1,0 +1,204 @@
+"""The report's tables and ``results.md``: :func:`write_report`."""
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from torchrl_mbe.envs.registry import EnvBounds
+from torchrl_mbe.report.figures import plot_coverage, plot_learning_curves
+from torchrl_mbe.report.metrics import max_position, pairwise_coverage
+from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, method_key, plane_coverage, solved_threshold
+
+__all__ = ["write_report"]
+
+logger = logging.getLogger(__name__)
+
+_MISSING = "–"
+
+
+def _fmt(value: float | None, digits: int = 1) -> str:
+    if value is None:
+        return _MISSING
+    return str(value) if isinstance(value, int) else f"{value:.{digits}f}"
+
+
+def _mean_and_seeds(values: Sequence[float | None], digits: int = 1) -> str:
+    """``mean [per seed]``; the mean is over the seeds that have a value."""
+    present = [v for v in values if v is not None]
+    mean = _fmt(float(np.mean(present)), digits) if present else _MISSING
+    return f"{mean} [{', '.join(_fmt(v, digits) for v in values)}]"
+
+
+def _percent_and_seeds(fractions: Sequence[float]) -> str:
+    """``mean ± std [per seed]`` of fractions, in percent; ``–`` for none."""
+    if not fractions:
+        return _MISSING
+    percent = 100.0 * np.asarray(fractions)
+    per_seed = ", ".join(f"{v:.1f}%" for v in percent)
+    return f"{percent.mean():.1f}% ± {percent.std():.1f}% [{per_seed}]"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+
+def _learning_section(groups: dict[str, list[Run]], window: int) -> list[str]:
+    threshold = solved_threshold(groups)
+    solved_at = "no solved threshold" if threshold is None else f"solved at a {window}-episode average of {threshold:g}"
+    rows = []
+    for method, runs in groups.items():
+        stats = [r.stats(window) for r in runs]
+        solved = [s.solved_episode for s in stats]
+        num_solved = sum(e is not None for e in solved)
+        rows.append(
+            [
+                method,
+                ", ".join(str(r.seed) for r in runs),
+                _mean_and_seeds([s.num_episodes for s in stats]),
+                _mean_and_seeds([s.first_success_episode for s in stats]),
+                _mean_and_seeds([s.num_successes for s in stats]),
+                _mean_and_seeds([s.best_running_average for s in stats]),
+                _mean_and_seeds([s.final_running_average for s in stats]),
+                _mean_and_seeds([r.final_eval_return for r in runs]),
+                f"{num_solved}/{len(runs)} at [{', '.join(_fmt(e) for e in solved)}]",
+            ]
+        )
+    header = [
+        "method", "seeds", "episodes", "first success episode", "successful episodes",
+        f"best {window}-ep avg", f"final {window}-ep avg", "final greedy eval", "solved (episode)",
+    ]
+    return [f"### Learning ({solved_at})", "", *_table(header, rows), ""]
+
+
+def _exploration_section(
+    groups: dict[str, list[Run]], bounds: EnvBounds | None, fitted: bool, window: int, bins: int
+) -> list[str]:
+    """The exploration table; coverage columns only when the env has bounds (see :func:`_env_bounds`)."""
+    header = ["method", "seeds", "episodes", "episodes reaching goal", "first success episode"]
+    pair_dims = bounds.coverage_dims if bounds is not None and len(bounds.coverage_dims) > 2 else ()
+    if bounds is not None:
+        header.append("coverage " + " x ".join(bounds.labels[d] for d in bounds.plane))
+        if pair_dims:
+            header.append(f"coverage, mean over pairs of {len(pair_dims)} dims")
+        if bounds.progress_dim is not None:
+            header.append(f"max {bounds.labels[bounds.progress_dim]}")
+    rows = []
+    for method, runs in groups.items():
+        stats = [r.stats(window) for r in runs]
+        row = [
+            method,
+            ", ".join(str(r.seed) for r in runs),
+            _mean_and_seeds([s.num_episodes for s in stats]),
+            _mean_and_seeds([s.num_successes for s in stats]),
+            _mean_and_seeds([s.first_success_episode for s in stats]),
+        ]
+        with_states = [r for r in runs if r.visited_states is not None]
+        if bounds is not None:
+            row.append(_percent_and_seeds([plane_coverage(r, bounds, bins) for r in with_states]))
+            if pair_dims:
+                row.append(_percent_and_seeds([pairwise_coverage(r.visited_states, bounds, bins) for r in with_states]))
+            if bounds.progress_dim is not None:
+                row.append(_mean_and_seeds([max_position(r.visited_states, bounds.progress_dim) for r in with_states], 3))
+        rows.append(row)
+    lines = ["### Exploration", "", *_table(header, rows), ""]
+    if bounds is not None:
+        box = ", ".join(
+            f"{bounds.labels[d]} in [{bounds.low[d]:.3g}, {bounds.high[d]:.3g}]" for d in bounds.coverage_dims
+        )
+        source = "fitted to this environment's visited states: it has no entry in the task registry" if fitted else "fixed"
+        lines += [
+            f"Coverage: fraction of the cells of a {bins}x{bins} grid holding a visited state; box ({source}): {box}. "
+            "Coverage and max values are over the seeds that saved visited states.",
+            "",
+        ]
+    return lines
+
+
+_DEFINITIONS = """\
+## How to read these tables
+
+- `mean [per seed]`: the mean is over the seeds that have a value; `–` means none
+  (never reached the goal, never solved, no evaluation).
+- Running average at episode i: mean return of episodes max(1, i-{w}+1) .. i, so curves
+  start at episode 1. *Best* average only counts windows of {w} episodes (all of them
+  if the run is shorter); *final* is the last {w} episodes.
+- Solved: first episode at which the mean of the last full {w} episodes reached the
+  threshold (gymnasium's definition; a run shorter than {w} episodes is never solved).
+- First success / episodes reaching goal: from each run's `reached_goal` column, as the
+  training app recorded it (`torchrl_mbe.envs.reached_goal`: the flag on MountainCar and
+  Acrobot, a landing at rest on LunarLander, balancing to the time limit on CartPole).
+- Max position: the largest position among the saved visited states.
+- Learning curves: mean over seeds with min-max band; past a shorter run's end, over the runs still going.
+- Groups: one per method and config (tag and config fingerprint); a method run with several configs
+  is labelled `method [tag config]`.
+- Coverage figure: the seed with the best coverage of each method ("best of N runs").
+"""
+
+
+def _env_section(
+    env: str, runs: Sequence[Run], out_dir: Path, colors: dict[str, str], window: int, bins: int
+) -> tuple[list[str], list[Path]]:
+    """The markdown lines and figures of one environment."""
+    lines, written = [f"## {env}", ""], []
+    learning = group_runs([r for r in runs if not r.is_exploration])
+    if learning:
+        lines += _learning_section(learning, window)
+        figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{file_stem(env)}.png")
+        if figure is not None:
+            written.append(figure)
+            lines += [f"![learning curves]({figure.name})", ""]
+    exploration = group_runs([r for r in runs if r.is_exploration])
+    if exploration:
+        bounds, fitted = env_bounds(env, runs)
+        lines += _exploration_section(exploration, bounds, fitted, window, bins)
+        best = _best_runs(exploration, bounds, bins) if bounds is not None else {}
+        if best:
+            written.append(plot_coverage(env, best, bounds, bins, out_dir / f"coverage_{file_stem(env)}.png"))
+            shown = ", ".join(f"{method} seed {run.seed} ({coverage:.1%})" for method, (run, coverage, _) in best.items())
+            lines += [f"![visited states]({written[-1].name})", "", f"Panels, best-covering seed per method: {shown}.", ""]
+    return lines, written
+
+
+def _best_runs(groups: dict[str, list[Run]], bounds: EnvBounds, bins: int) -> dict[str, tuple[Run, float, int]]:
+    """Per method with visited states: its best-covering run, that coverage, and how many runs competed."""
+    best = {}
+    for method, runs in groups.items():
+        scored = [(plane_coverage(r, bounds, bins), r) for r in runs if r.visited_states is not None]
+        if scored:
+            coverage, run = max(scored, key=lambda pair: pair[0])
+            best[method] = (run, coverage, len(scored))
+    return best
+
+
+def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100, bins: int = 20) -> list[Path]:
+    """Writes the figures and ``results.md`` of ``runs`` into ``out_dir``; returns the written paths.
+
+    Keyword Args:
+        window (int): running-average window in episodes. Defaults to 100.
+        bins (int): coverage grid cells per dimension. Defaults to 20.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    learning_groups = group_runs([r for r in runs if not r.is_exploration])
+    colors = {label: f"C{i % 10}" for i, label in enumerate(learning_groups)}
+    envs = sorted({r.env for r in runs})
+    lines = ["# Results", "", f"{len(runs)} runs in {len(envs)} environment(s).", ""]
+    written: list[Path] = []
+    for env in envs:
+        env_lines, env_figures = _env_section(env, [r for r in runs if r.env == env], out_dir, colors, window, bins)
+        lines += env_lines
+        written += env_figures
+    lines.append(_DEFINITIONS.format(w=window))
+    results = out_dir / "results.md"
+    results.write_text("\n".join(lines) + "\n")
+    written.append(results)
+    for path in written:
+        logger.info("Wrote %s", path)
+    return written
+
+

@@ -1,0 +1,99 @@
+"""The run directory: what a training run writes and the report reads.
+
+One owner for the format, used by both sides (:mod:`torchrl_mbe.app` writes,
+:mod:`torchrl_mbe.report` reads); it imports nothing but the standard library.
+
+A run directory holds:
+
+* ``summary.json``: the run's outcome, fields in :data:`SUMMARY_FIELDS`;
+* the CSV tables of :data:`TABLES` (``episodes.csv``: one row per finished training
+  episode; ``evaluations.csv``: one row per greedy evaluation; ``updates.csv``:
+  losses, dynamics error, eps and throughput every few updates);
+* ``checkpoint.pt`` (what ``resume=true`` continues from) and ``best_policy.pt``
+  (the greedy actor of the best periodic evaluation);
+* ``visited_states.npy`` with ``visited_episodes.npy`` when the run records the
+  states it visited (the coverage experiment).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+__all__ = [
+    "SUMMARY",
+    "CHECKPOINT",
+    "BEST_POLICY",
+    "VISITED_STATES",
+    "VISITED_EPISODES",
+    "TABLES",
+    "SUMMARY_FIELDS",
+    "EXPLORATION_PREFIX",
+    "table_file",
+]
+
+SUMMARY = "summary.json"
+CHECKPOINT = "checkpoint.pt"
+BEST_POLICY = "best_policy.pt"
+VISITED_STATES = "visited_states.npy"
+VISITED_EPISODES = "visited_episodes.npy"
+
+TABLES: dict[str, tuple[str, ...]] = {
+    "episodes": ("episode", "frames", "return", "length", "reached_goal", "eps", "wall_time_s"),
+    "evaluations": ("frames", "episode", "eval_return_mean", "eval_return_std", "eval_success_rate"),
+    "updates": ("frames", "updates", "loss_q", "loss_dynamics", "dynamics_val_error", "eps", "frames_per_s"),
+}
+"""The CSV tables of a run and their columns."""
+
+EXPLORATION_PREFIX = "explore:"
+"""Methods named ``explore:<explorer>`` are exploration-only runs (the Q-network never learns)."""
+
+
+def table_file(table: str) -> str:
+    """The file name of one of :data:`TABLES`: ``episodes.csv``, ..."""
+    return f"{table}.csv"
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _optional(test: Callable[[Any], bool]) -> Callable[[Any], bool]:
+    return lambda value: value is None or test(value)
+
+
+def _text(value: Any) -> bool:
+    return isinstance(value, str) and bool(value)
+
+
+SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
+    # name: (check, what it must be, required by the report)
+    "env": (_text, "a non-empty string", True),
+    "method": (_text, "a non-empty string", True),
+    "seed": (_is_int, "an integer", True),
+    "solved_threshold": (_optional(_is_number), "a number or null", True),
+    "tag": (_text, "a non-empty string", False),
+    "config_id": (_text, "a non-empty string", False),
+    "frames": (_is_int, "an integer", False),
+    "episodes": (_is_int, "an integer", False),
+    "q_updates": (_is_int, "an integer", False),
+    "dynamics_updates": (_is_int, "an integer", False),
+    "wall_time_s": (_is_number, "a number", False),
+    "frames_per_s": (_is_number, "a number", False),
+    "first_success_episode": (_optional(_is_int), "an integer or null", False),
+    "final_eval_return": (_optional(_is_number), "a number or null", False),
+    "final_eval_success_rate": (_optional(_is_number), "a number or null", False),
+    "best_eval_return": (_optional(_is_number), "a number or null", False),
+    "best_eval_frames": (_optional(_is_int), "an integer or null", False),
+    "solved": (_optional(lambda v: isinstance(v, bool)), "true, false or null", False),
+    "solved_at_frames": (_optional(_is_int), "an integer or null", False),
+    "solved_at_wall_time_s": (_optional(_is_number), "a number or null", False),
+}
+"""Every field of ``summary.json``. ``tag`` and ``config_id`` (a fingerprint of every
+setting that shapes the result except the seed) say which experiment a run belongs
+to, so the report groups only runs of the same config; ``solved`` compares the
+final evaluation with the threshold; ``solved_at_*`` is the first periodic
+evaluation at or above it."""
