@@ -57,9 +57,10 @@ def run_app():
     """``run_app(*args, cwd=...)``: ``python train.py`` with :data:`QUICK` and ``args`` in a subprocess."""
 
     def run(*args: str, cwd: Path, env: dict | None = None) -> subprocess.CompletedProcess:
+        """``env``: variables to set on top of this process's; a value of ``None`` unsets one."""
         return subprocess.run(
             [sys.executable, str(REPO / "train.py"), *args, *quick_for(args)],
-            cwd=cwd, env={**os.environ, "WANDB_MODE": "disabled", **(env or {})}, capture_output=True, text=True, timeout=600,
+            cwd=cwd, env=_environment({"WANDB_MODE": "disabled", **(env or {})}), capture_output=True, text=True, timeout=600,
         )
 
     return run
@@ -74,3 +75,8 @@ def read_table():
             return list(csv.DictReader(handle))
 
     return read
+
+
+def _environment(changes: dict) -> dict:
+    environment = {**os.environ, **changes}
+    return {key: value for key, value in environment.items() if value is not None}

@@ -3,6 +3,7 @@ from __future__ import annotations
 import json
 import os
 import signal
+from pathlib import Path
 
 import pytest
 import torch
@@ -207,3 +208,14 @@ def test_resume_restores_the_target_network_and_its_update_counter(tmp_path, com
     assert summary["q_updates"] % 6 != 0  # a counter mid-period, which a resume must not restart
     assert saved["target_updater_counter"] == summary["q_updates"] % 6  # HardUpdate counts 0..interval
     assert "q_loss" not in saved  # the Q weights are stored once, in the policy
+
+
+@pytest.mark.parametrize("logger", ["csv", "wandb"])
+def test_a_default_run_makes_no_network_connection(tmp_path, run_app, logger):
+    """The default run (and wandb offline) under an audit hook that records every non-loopback lookup or connect."""
+    netlog = tmp_path / "network.log"
+    site = Path(__file__).parent / "netguard_site"
+    env = {"PYTHONPATH": str(site), "NETGUARD_LOG": str(netlog), "WANDB_MODE": None, "WANDB_ERROR_REPORTING": None}
+    result = run_app(f"logger={logger}", f"hydra.run.dir={tmp_path}/run", "train.max_frames=200", cwd=tmp_path, env=env)
+    assert result.returncode == 0, result.stderr
+    assert not netlog.exists() or netlog.read_text() == ""

@@ -19,7 +19,8 @@ class RunLogger:
     Headers are written and flushed when the files open, and every row is
     flushed, so a killed run leaves readable tables. wandb (``logger=wandb``)
     runs in ``cfg.logger.mode`` (``offline`` by default) unless ``WANDB_MODE`` is
-    set in the environment, which wins.
+    set in the environment, which wins; outside ``online`` mode it makes no
+    network connection (``WANDB_ERROR_REPORTING=false`` unless you set it).
 
     Args:
         run_dir (Path): the run directory.
@@ -70,12 +71,17 @@ def _rows_up_to(path: Path, frames: int) -> list[dict]:
 
 
 def _make_wandb_logger(run_dir: Path, cfg: DictConfig) -> WandbLogger:
+    mode = os.environ.get("WANDB_MODE", cfg.logger.mode)
+    if mode != "online":
+        # wandb 0.31 probes its telemetry host from the Python process even in offline mode
+        # (its process-wide settings stay online); this switch turns that probe off.
+        os.environ.setdefault("WANDB_ERROR_REPORTING", "false")
     logger = WandbLogger(
         exp_name=run_dir.name,
         offline=False,  # TorchRL's offline=True rewrites WANDB_MODE; pass the mode instead
         save_dir=str(run_dir),
         project=cfg.logger.project,
-        mode=os.environ.get("WANDB_MODE", cfg.logger.mode),
+        mode=mode,
     )
     logger.log_hparams(OmegaConf.to_container(cfg, resolve=True))
     return logger
