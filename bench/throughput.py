@@ -285,11 +285,11 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     parts = {
         **steps,
         "store the frame (buffer.extend)": functools.partial(buffer.extend, transition),
-        "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer, cfg.algo.batch_size, None),
+        "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer, cfg.algo.batch_size),
         "  of which: buffer.sample(16)": functools.partial(buffer.sample, cfg.algo.batch_size),
         "  of which: DQNLoss forward on 16": functools.partial(agent.q_loss, q_batch),
         "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(
-            update_dynamics, agent, buffer, cfg.dynamics.batch_size, None
+            update_dynamics, agent, buffer, cfg.dynamics.batch_size
         ),
         "dynamics error on the new frame": functools.partial(check_dynamics_on_new_data, agent, frame, run),
     }

@@ -45,8 +45,8 @@ def test_reinforce_trains_and_writes_the_same_run_files_as_dqn(tmp_path, read_ta
 def test_the_policy_network_starts_as_in_the_appendix(compose_reinforce):
     cfg = compose_reinforce("env=cartpole")
     agent = build_reinforce_agent(cfg, make_env("cartpole"))
-    assert agent.gamma == 0.995 and agent.optimizer.defaults["lr"] == 0.02
-    assert isinstance(agent.optimizer, torch.optim.Adam)
+    assert agent.gamma == 0.995 and agent.step.optimizer.defaults["lr"] == 0.02
+    assert isinstance(agent.step.optimizer, torch.optim.Adam)
     network = agent.actor.module[0].module
     assert isinstance(network, MLP) and [type(layer) for layer in network] == [nn.Linear, nn.Tanh, nn.Linear]
     assert (network[0].in_features, network[0].out_features, network[2].out_features) == (4, 10, 2)

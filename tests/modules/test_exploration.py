@@ -124,3 +124,17 @@ def test_warm_up_takes_random_actions_until_the_model_is_trusted(env):
 def test_bad_schedules_are_rejected(env, kwargs, message):
     with pytest.raises(ValueError, match=message):
         build_policy(env, **kwargs)
+
+
+def test_a_collector_feeds_the_window_only_the_states_it_visits():
+    env = make_env("mountaincar", num_envs=4, seed=0)
+    spec = env.action_spec_unbatched
+    actor = QValueActor(MLP(out_features=3, num_cells=[8]), spec=spec, in_keys=["observation"])
+    planner = NoveltyPlanner(DynamicsModel(2, spec), RollingGaussianDensity(2, window=50, batch_shape=(4,)), spec)
+    policy = ModelBasedExplorationPolicy(actor, planner)
+    collector = Collector(env, policy, frames_per_batch=8, total_frames=-1)
+    assert int(planner.novelty.num_seen) == 0  # building the collector visits nothing
+    batch = next(iter(collector))
+    assert int(planner.novelty.num_seen) == batch.shape[-1] == 2
+    assert torch.equal(planner.novelty.window_states(), batch["observation"])
+    collector.shutdown()

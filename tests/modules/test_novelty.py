@@ -147,11 +147,33 @@ def test_a_loaded_state_dict_scores_the_same(scored_before_saving):
     assert torch.equal(restored.score(queries), density.score(queries))
 
 
-def test_a_state_dict_without_the_fit_flag_still_loads_and_refits():
-    density = RollingGaussianDensity(3, window=20)
-    density.update(correlated_states(30))
-    state = {key: value for key, value in density.state_dict().items() if key != "fit_stale"}
-    restored = RollingGaussianDensity(3, window=20)
-    restored.load_state_dict(state)
-    queries = correlated_states(7)
-    assert torch.equal(restored.score(queries), density.score(queries))
+
+@pytest.mark.parametrize("scorer_cls", [RollingGaussianDensity, GaussianKernelNovelty])
+def test_scorers_infer_the_state_size_from_the_first_update_and_restore_into_a_fresh_one(scorer_cls):
+    scorer = scorer_cls(window=20, batch_shape=(3,))
+    assert torch.equal(scorer.score(torch.ones(5, 3, 4)), torch.zeros(5, 3))  # empty window: nothing is rarer
+    states = torch.randn(30, 3, 4)
+    scorer.update(states)
+    assert scorer.num_features == 4 and torch.equal(scorer.window_states(), states[-20:].movedim(0, -2))
+    fresh = scorer_cls(window=20, batch_shape=(3,))
+    fresh.load_state_dict(scorer.state_dict())
+    probe = torch.randn(7, 3, 4)
+    assert torch.allclose(fresh.score(probe), scorer.score(probe))
+
+
+def test_kernel_scorer_without_num_features_through_a_collector_with_batched_envs():
+    from torchrl.collectors import Collector
+    from torchrl.modules import MLP, QValueActor
+
+    from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, make_env
+
+    env = make_env("mountaincar", num_envs=4, seed=0)
+    spec = env.action_spec_unbatched
+    novelty = GaussianKernelNovelty(window=50, bandwidth=0.1, batch_shape=(4,))
+    actor = QValueActor(MLP(out_features=3, num_cells=[8]), spec=spec, in_keys=["observation"])
+    policy = ModelBasedExplorationPolicy(actor, NoveltyPlanner(DynamicsModel(2, spec), novelty, spec))
+    collector = Collector(env, policy, frames_per_batch=40, total_frames=-1)
+    batch = next(iter(collector))
+    assert novelty.num_features == 2 and novelty.num_stored == 10
+    assert torch.equal(novelty.window_states(), batch["observation"])  # one window per env, in visiting order
+    collector.shutdown()

@@ -25,12 +25,12 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.config import is_planning
 from torchrl_mbe.app.run import (
+    GradientStep,
     Run,
     StopOnInterrupt,
     evaluate_and_checkpoint_if_due,
     finish_run,
     open_run,
-    optimizer_step,
     record_frames,
 )
 from torchrl_mbe.envs import MountainCarDynamics, make_env
@@ -63,8 +63,6 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     run = open_run(cfg, run_dir, env, agent, replay_buffer)
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma)
     collector = Collector(env, agent.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
-    if agent.novelty is not None:
-        agent.novelty.reset()  # the Collector probes the policy once when it is built: not a visited state
     batches = iter(collector)
     with StopOnInterrupt() as interrupt:
         while not (run.budget_spent() or interrupt.requested):
@@ -88,9 +86,9 @@ class DQNAgent:
     explorer: AnnealedEGreedyModule | None  # holds eps; its step() anneals it
     q_loss: DQNLoss
     target_updater: TargetNetUpdater
-    q_optimizer: torch.optim.Optimizer
+    q_step: GradientStep  # DQNLoss, clipping, Adam
     dynamics_loss: DynamicsLoss | None
-    dynamics_optimizer: torch.optim.Optimizer | None
+    dynamics_step: GradientStep | None  # DynamicsLoss, clipping, Adam (None for the oracle)
 
     @property
     def eps(self) -> float:
@@ -107,10 +105,10 @@ class DQNAgent:
             "policy": self.policy.state_dict(),
             "target_network": self.q_loss.target_value_network_params.data.clone(),
             "target_updater_counter": getattr(self.target_updater, "counter", None),
-            "q_optimizer": self.q_optimizer.state_dict(),
+            "q_optimizer": self.q_step.optimizer.state_dict(),
         }
-        if self.dynamics_optimizer is not None:
-            state["dynamics_optimizer"] = self.dynamics_optimizer.state_dict()
+        if self.dynamics_step is not None:
+            state["dynamics_optimizer"] = self.dynamics_step.optimizer.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -118,9 +116,9 @@ class DQNAgent:
         self.q_loss.target_value_network_params.data.update_(state["target_network"])
         if state["target_updater_counter"] is not None:
             self.target_updater.counter = state["target_updater_counter"]
-        self.q_optimizer.load_state_dict(state["q_optimizer"])
-        if self.dynamics_optimizer is not None:
-            self.dynamics_optimizer.load_state_dict(state["dynamics_optimizer"])
+        self.q_step.optimizer.load_state_dict(state["q_optimizer"])
+        if self.dynamics_step is not None:
+            self.dynamics_step.optimizer.load_state_dict(state["dynamics_optimizer"])
 
 
 def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
@@ -137,7 +135,11 @@ def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
     if dynamics is not None:
         dynamics_loss = DynamicsLoss(dynamics)
         dynamics_loss.set_keys(next_observation=SUCCESSOR_KEY)
-    learned = isinstance(dynamics, DynamicsModel)
+    dynamics_step = None
+    if isinstance(dynamics, DynamicsModel):
+        dynamics_optimizer = torch.optim.Adam(dynamics.parameters(), lr=cfg.dynamics.lr)
+        dynamics_step = GradientStep(lambda batch: dynamics_loss(batch)["loss_dynamics"], dynamics_optimizer, cfg.dynamics.max_grad_norm, compile=cfg.compile)
+    q_optimizer = torch.optim.Adam(q_loss.parameters(), lr=algo.lr)
     return DQNAgent(
         actor=actor,
         q_input_norm=q_input_norm,
@@ -145,9 +147,9 @@ def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
         explorer=explorer,
         q_loss=q_loss,
         target_updater=make_target_updater(algo, q_loss),
-        q_optimizer=torch.optim.Adam(q_loss.parameters(), lr=algo.lr),
+        q_step=GradientStep(lambda batch: q_loss(batch)["loss"], q_optimizer, algo.max_grad_norm, compile=cfg.compile),
         dynamics_loss=dynamics_loss,
-        dynamics_optimizer=torch.optim.Adam(dynamics.parameters(), lr=cfg.dynamics.lr) if learned else None,
+        dynamics_step=dynamics_step,
     )
 
 
@@ -288,12 +290,12 @@ def learn_from_new_frames(
     """The updates that ``new_frames`` frames pay for: dynamics steps, Q steps with target updates, eps decay."""
     progress = run.progress
     frames = progress.frames
-    if agent.dynamics_optimizer is not None and frames >= dynamics.learning_starts:
+    if agent.dynamics_step is not None and frames >= dynamics.learning_starts:
         progress.dynamics_update_credit += new_frames * dynamics.updates_per_frame
         while progress.dynamics_update_credit >= 1:
             if progress.dynamics_updates == 0:
                 agent.dynamics_loss.dynamics.fit_normalization(replay_buffer, next_observation_key=SUCCESSOR_KEY)
-            progress.last_loss_dynamics = update_dynamics(agent, replay_buffer, dynamics.batch_size, dynamics.max_grad_norm)
+            progress.last_loss_dynamics = update_dynamics(agent, replay_buffer, dynamics.batch_size)
             progress.dynamics_updates += 1
             progress.dynamics_update_credit -= 1
     if frames < algo.learning_starts:
@@ -304,7 +306,7 @@ def learn_from_new_frames(
     while progress.q_update_credit >= 1:
         if progress.q_updates == 0 and agent.q_input_norm is not None:
             fit_q_input_norm(agent, replay_buffer)
-        loss_q = update_q(agent, replay_buffer, algo.batch_size, algo.max_grad_norm)
+        loss_q = update_q(agent, replay_buffer, algo.batch_size)
         progress.q_updates += 1
         progress.q_update_credit -= 1
         every = run.cfg.logger.log_every_updates
@@ -323,22 +325,21 @@ def fit_q_input_norm(agent: DQNAgent, replay_buffer: ReplayBuffer) -> None:
     agent.q_loss.target_value_network_params.update_(agent.q_loss.value_network_params)
 
 
-def update_q(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int, max_grad_norm: float | None) -> float:
+def update_q(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> float:
     """One DQN gradient step (TorchRL's DQNLoss) and a target-network update."""
     sample = replay_buffer.sample(batch_size)
-    loss = agent.q_loss(sample)["loss"]
-    optimizer_step(loss, agent.q_optimizer, max_grad_norm)
+    batch = sample.exclude("index")  # the same keys at every call, so a compiled step is traced once
+    loss = agent.q_step(batch)
     agent.target_updater.step()
     if isinstance(replay_buffer, TensorDictPrioritizedReplayBuffer):
+        sample.set("td_error", batch.get("td_error"))
         replay_buffer.update_tensordict_priority(sample)
-    return loss.item()
+    return loss
 
 
-def update_dynamics(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int, max_grad_norm: float | None) -> float:
+def update_dynamics(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> float:
     """One gradient step of the dynamics model on its own batch from the same buffer."""
-    loss = agent.dynamics_loss(replay_buffer.sample(batch_size))["loss_dynamics"]
-    optimizer_step(loss, agent.dynamics_optimizer, max_grad_norm)
-    return loss.item()
+    return agent.dynamics_step(replay_buffer.sample(batch_size).exclude("index"))
 
 
 def log_updates(loss_q: float, agent: DQNAgent, run: Run) -> None:

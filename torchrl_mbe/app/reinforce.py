@@ -52,8 +52,8 @@ from torchrl_mbe.app.run import (
     StopOnInterrupt,
     evaluate_and_checkpoint_if_due,
     finish_run,
+    GradientStep,
     open_run,
-    optimizer_step,
     play_episode,
     record_frames,
 )
@@ -69,16 +69,16 @@ class ReinforceAgent:
 
     actor: ProbabilisticActor
     loss: ReinforceLoss
-    optimizer: torch.optim.Optimizer
+    step: GradientStep  # ReinforceLoss on a whole episode, Adam
     gamma: float
     eps: float = 0.0  # no eps: the policy's own sampling explores
 
     def state_dict(self) -> dict:
-        return {"actor": self.actor.state_dict(), "optimizer": self.optimizer.state_dict()}
+        return {"actor": self.actor.state_dict(), "optimizer": self.step.optimizer.state_dict()}
 
     def load_state_dict(self, state: dict) -> None:
         self.actor.load_state_dict(state["actor"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        self.step.optimizer.load_state_dict(state["optimizer"])
 
 
 def make_policy_actor(
@@ -145,7 +145,9 @@ def build_reinforce_agent(cfg: DictConfig, env: EnvBase) -> ReinforceAgent:
     )
     zero_baseline = TensorDictModule(_zero_value, in_keys=["observation"], out_keys=["state_value"])
     loss = ReinforceLoss(actor, zero_baseline, functional=False)
-    return ReinforceAgent(actor, loss, torch.optim.Adam(actor.parameters(), lr=cfg.algo.lr), cfg.algo.gamma)
+    gamma = cfg.algo.gamma
+    step = GradientStep(lambda episode: loss(write_advantage(episode, gamma))["loss_actor"], torch.optim.Adam(actor.parameters(), lr=cfg.algo.lr), None)
+    return ReinforceAgent(actor, loss, step, gamma)
 
 
 def write_advantage(episode: TensorDictBase, gamma: float) -> TensorDictBase:
@@ -175,8 +177,7 @@ def write_advantage(episode: TensorDictBase, gamma: float) -> TensorDictBase:
 
 def update_policy(agent: ReinforceAgent, episode: TensorDictBase) -> None:
     """One REINFORCE gradient step on one whole episode."""
-    loss = agent.loss(write_advantage(episode, agent.gamma))["loss_actor"]
-    optimizer_step(loss, agent.optimizer, max_grad_norm=None)
+    agent.step(episode)
 
 
 def train_reinforce(cfg: DictConfig, run_dir: Path) -> dict:

@@ -43,7 +43,7 @@ __all__ = [
     "finish_run",
     "evaluate",
     "play_episode",
-    "optimizer_step",
+    "GradientStep",
     "CHECKPOINT_FORMAT",
 ]
 
@@ -137,7 +137,7 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
     eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
     progress = _start_or_resume(cfg, run_dir, agent, replay_buffer)
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
-    bar = tqdm(total=cfg.train.episodes, initial=progress.episodes, unit="ep", disable=not cfg.progress_bar)
+    bar = _progress_bar(cfg, progress)
     run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar, replay_buffer)
     run.started -= progress.wall_time_s
     if cfg.resume and progress.finished:
@@ -147,6 +147,18 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
         progress.finished = False
     log.info("Run directory: %s", run_dir)
     return run
+
+
+def _progress_bar(cfg: DictConfig, progress: Progress) -> tqdm:
+    """Counts frames when the budget is in frames (``train.max_frames``), else episodes; off when not a terminal."""
+    frames_budget = cfg.train.max_frames is not None
+    return tqdm(
+        total=cfg.train.max_frames if frames_budget else cfg.train.episodes,
+        initial=progress.frames if frames_budget else progress.episodes,
+        unit="frame" if frames_budget else "ep",
+        unit_scale=frames_budget,
+        disable=None if cfg.progress_bar else True,
+    )
 
 
 def _start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, replay_buffer: Any) -> Progress:
@@ -213,6 +225,8 @@ def record_frames(run: Run, batch: TensorDictBase) -> None:
     progress = run.progress
     progress.frames += batch.numel()
     progress.wall_time_s = time.perf_counter() - run.started
+    if run.cfg.train.max_frames is not None:  # the bar counts frames (see _progress_bar)
+        run.bar.update(batch.numel())
     _record_episodes(run, batch)
     if run.cfg.train.save_visited_states:
         _record_visited_states(batch, progress)
@@ -247,8 +261,9 @@ def _record_episodes(run: Run, batch: TensorDictBase) -> None:
                 "wall_time_s": round(progress.wall_time_s, 3),
             },
         )
-        run.bar.update(1)
-        run.bar.set_postfix(frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}")
+        if run.cfg.train.max_frames is None:
+            run.bar.update(1)
+        run.bar.set_postfix(episodes=progress.episodes, frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}")
 
 
 def _record_visited_states(batch: TensorDictBase, progress: Progress) -> None:
@@ -283,7 +298,7 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, episodes: int, env_id: s
     """
     returns, successes = [], []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for _ in tqdm(range(episodes), desc=description, unit="ep", disable=description is None, leave=False):
+        for _ in tqdm(range(episodes), desc=description, unit="ep", disable=None if description else True, leave=False):
             episode = finished_episodes(play_episode(env, actor))[-1]
             returns.append(episode.episode_return)
             successes.append(reached_goal(env_id, episode))
@@ -305,14 +320,54 @@ def _log_evaluation(result: dict, run: Run) -> None:
     log.info("eval at %d frames: return %.1f", progress.frames, result["eval_return_mean"])
 
 
-def optimizer_step(loss: torch.Tensor, optimizer: torch.optim.Optimizer, max_grad_norm: float | None) -> None:
-    """Backward, optional gradient-norm clipping of the optimizer's parameters, step."""
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    if max_grad_norm is not None:
-        for group in optimizer.param_groups:
-            torch.nn.utils.clip_grad_norm_(group["params"], max_grad_norm)
-    optimizer.step()
+class GradientStep:
+    """One gradient step of a loss: loss and backward (compiled with ``compile=True``), clipping, optimizer step.
+
+    With ``compile``, ``torch.compile`` traces the loss and its backward on the
+    first call (seconds on a CPU) and then runs that graph; if compilation fails,
+    a warning says so and the step runs eagerly from then on. Clipping and the
+    optimizer step stay eager (they break graphs).
+
+    Args:
+        loss (callable): ``loss(batch) -> scalar tensor``.
+        optimizer (torch.optim.Optimizer): steps the parameters the loss depends on.
+        max_grad_norm (float, optional): clips the gradient norm of each parameter group.
+
+    Keyword Args:
+        compile (bool): compile the loss and backward. Defaults to ``False``.
+    """
+
+    def __init__(self, loss, optimizer: torch.optim.Optimizer, max_grad_norm: float | None, *, compile: bool = False) -> None:
+        self.loss = loss
+        self.optimizer = optimizer
+        self.max_grad_norm = max_grad_norm
+        self._loss_and_backward = torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
+
+    def __call__(self, batch: TensorDictBase) -> float:
+        """Takes the step on ``batch`` and returns the loss before it."""
+        self.optimizer.zero_grad(set_to_none=True)
+        loss = self._compiled_or_eager(batch)
+        if self.max_grad_norm is not None:
+            for group in self.optimizer.param_groups:
+                torch.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
+        self.optimizer.step()
+        return loss.item()
+
+    def _eager_loss_and_backward(self, batch: TensorDictBase) -> torch.Tensor:
+        loss = self.loss(batch)
+        loss.backward()
+        return loss.detach()
+
+    def _compiled_or_eager(self, batch: TensorDictBase) -> torch.Tensor:
+        if self._loss_and_backward == self._eager_loss_and_backward:
+            return self._loss_and_backward(batch)
+        try:
+            return self._loss_and_backward(batch)
+        except torch._dynamo.exc.TorchDynamoException as error:  # the compiler, not the loss, failed
+            log.warning("torch.compile failed (%s); this update runs eagerly from now on.", type(error).__name__)
+            self._loss_and_backward = self._eager_loss_and_backward
+            self.optimizer.zero_grad(set_to_none=True)
+            return self._loss_and_backward(batch)
 
 
 def save_checkpoint(run: Run) -> None:

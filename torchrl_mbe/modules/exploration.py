@@ -7,7 +7,7 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import expand_as_right
-from torchrl.data import TensorSpec
+from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import EGreedyModule
 
@@ -155,6 +155,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         self.in_keys = list(dict.fromkeys([*actor.in_keys, self.observation_key]))
         self.out_keys = list(actor.out_keys)
         self.register_buffer("model_trusted", torch.tensor(model_error_threshold is None, device=device))
+        self._spec = _complete_output_spec(actor, planner, action_key)
 
     @property
     def novelty(self):
@@ -189,6 +190,26 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
             return candidates[torch.randint(len(candidates), tensordict.batch_size, device=candidates.device)]
         planned = self.planner(tensordict.select(self.observation_key))
         return planned.get(self.planner.out_keys[0])
+
+
+def _complete_output_spec(actor: TensorDictModuleBase, planner: NoveltyPlanner, action_key: NestedKey) -> Composite:
+    """The policy's output spec with an entry for every output of a Q-value actor.
+
+    A :class:`~torchrl.collectors.Collector` calls a policy once when it is built
+    unless the policy's spec names all its output keys; that probe call would
+    push a state that was never visited into the novelty window.
+    """
+    actor_spec = getattr(actor, "spec", None) or Composite()
+    shapes = {"action_value": (planner.num_actions,), "chosen_action_value": (1,)}
+    spec = Composite({action_key: planner.action_spec})
+    for key in actor.out_keys:
+        if key == action_key:
+            continue
+        if actor_spec.get(key, None) is not None:
+            spec[key] = actor_spec[key]
+        elif key in shapes:
+            spec[key] = Unbounded(shapes[key], device=planner.action_spec.device)
+    return spec
 
 
 def _check_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, schedule: str) -> None:

@@ -34,7 +34,8 @@ class RollingWindowNovelty(nn.Module):
     ``.to(device)`` and collector weight sync.
 
     Args:
-        num_features (int): size of a state vector.
+        num_features (int, optional): size of a state vector; inferred from the
+            first :meth:`update` when ``None`` (the default).
         window (int): how many recent states to keep (the paper's F). At least 2.
 
     Keyword Args:
@@ -45,28 +46,33 @@ class RollingWindowNovelty(nn.Module):
 
     def __init__(
         self,
-        num_features: int,
+        num_features: int | None = None,
         window: int = 50,
         *,
         batch_shape: Sequence[int] = (),
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
-        if int(num_features) < 1:
-            raise ValueError(f"num_features must be a positive integer, got {num_features}.")
+        if num_features is not None and int(num_features) < 1:
+            raise ValueError(f"num_features must be a positive integer or None, got {num_features}.")
         if int(window) < 2:
             raise ValueError(
                 f"window must be an integer >= 2 (the paper uses 50), got {window}: "
                 "a density needs at least two states to estimate a spread."
             )
-        self.num_features = int(num_features)
+        self.num_features: int | None = None
         self.window = int(window)
         self.batch_shape = torch.Size(batch_shape)
-        self.register_buffer(
-            "states", torch.zeros(*self.batch_shape, self.window, self.num_features, device=device)
-        )
+        self.register_buffer("states", None)
         self.register_buffer("num_seen", torch.zeros((), dtype=torch.int64, device=device))
         self.register_buffer("fit_stale", torch.ones((), dtype=torch.bool, device=device))
+        if num_features is not None:
+            self._allocate(int(num_features))
+
+    def _allocate(self, num_features: int) -> None:
+        """Creates the window (and, in subclasses, what the fit caches) for states of ``num_features``."""
+        self.num_features = num_features
+        self.states = torch.zeros(*self.batch_shape, self.window, num_features, device=self.num_seen.device)
 
     @property
     def num_stored(self) -> int:
@@ -86,7 +92,10 @@ class RollingWindowNovelty(nn.Module):
         Args:
             states (Tensor): shape ``(*sample_shape, *batch_shape, num_features)``;
                 the sample dimensions are flattened in row-major (time) order.
+                The first update sets ``num_features`` if the constructor did not.
         """
+        if self.num_features is None:
+            self._allocate(states.shape[-1])
         states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
         states = states[-self.window :].to(self.states)
         seen = int(self.num_seen)
@@ -123,8 +132,8 @@ class RollingWindowNovelty(nn.Module):
         return states
 
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
-        # Checkpoints written before the fit became lazy have no flag: refit at the first score.
-        state_dict.setdefault(prefix + "fit_stale", torch.ones((), dtype=torch.bool))
+        if self.num_features is None and prefix + "states" in state_dict:  # a window that never saw a state
+            self._allocate(state_dict[prefix + "states"].shape[-1])
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def extra_repr(self) -> str:
@@ -157,7 +166,7 @@ class RollingGaussianDensity(RollingWindowNovelty):
     matrix product, and window updates that are never scored cost no fit.
 
     Args:
-        num_features (int): size of a state vector.
+        num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
         window (int): the paper's F, number of recent states fitted. Defaults to 50.
 
     Keyword Args:
@@ -181,7 +190,7 @@ class RollingGaussianDensity(RollingWindowNovelty):
 
     def __init__(
         self,
-        num_features: int,
+        num_features: int | None = None,
         window: int = 50,
         *,
         batch_shape: Sequence[int] = (),
@@ -189,15 +198,20 @@ class RollingGaussianDensity(RollingWindowNovelty):
         min_correlation_eigenvalue: float = 1e-6,
         device: torch.device | str | None = None,
     ) -> None:
-        super().__init__(num_features, window, batch_shape=batch_shape, device=device)
+        super().__init__(None, window, batch_shape=batch_shape, device=device)
         if min_variance <= 0 or min_correlation_eigenvalue <= 0:
             raise ValueError("min_variance and min_correlation_eigenvalue must be > 0.")
         self.min_variance = float(min_variance)
         self.min_correlation_eigenvalue = float(min_correlation_eigenvalue)
-        shape = (*self.batch_shape, self.num_features)
-        kwargs = {"dtype": torch.float64, "device": device}
+        if num_features is not None:
+            self._allocate(int(num_features))
+
+    def _allocate(self, num_features: int) -> None:
+        super()._allocate(num_features)
+        shape = (*self.batch_shape, num_features)
+        kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
         self.register_buffer("loc", torch.zeros(shape, **kwargs))
-        self.register_buffer("whitening", torch.zeros(*shape, self.num_features, **kwargs))
+        self.register_buffer("whitening", torch.zeros(*shape, num_features, **kwargs))
         self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
 
     @property
@@ -209,9 +223,9 @@ class RollingGaussianDensity(RollingWindowNovelty):
 
     def log_prob(self, states: torch.Tensor) -> torch.Tensor:
         """``log N(s | mu_F, Sigma_F)`` per state; zeros while the window is empty."""
-        states = self._check_shape(states)
         if self.num_stored == 0:
             return states.new_zeros(states.shape[:-1])
+        states = self._check_shape(states)
         self._refit_if_stale()
         centered = states.to(self.loc) - self.loc
         whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
@@ -251,7 +265,7 @@ class GaussianKernelNovelty(RollingWindowNovelty):
     ignores correlations between dimensions.
 
     Args:
-        num_features (int): size of a state vector.
+        num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
         window (int): number of recent states compared against. Defaults to 50.
 
     Keyword Args:
@@ -263,7 +277,7 @@ class GaussianKernelNovelty(RollingWindowNovelty):
     Examples:
         >>> import torch
         >>> from torchrl_mbe import GaussianKernelNovelty
-        >>> novelty = GaussianKernelNovelty(num_features=2, window=10, bandwidth=0.5)
+        >>> novelty = GaussianKernelNovelty(window=10, bandwidth=0.5)  # the state size comes with the first update
         >>> novelty.update(torch.zeros(10, 2))
         >>> novelty.score(torch.tensor([[0.0, 0.0], [1.0, 0.0]]))
         tensor([-10.0000,  -1.3534])
@@ -271,23 +285,33 @@ class GaussianKernelNovelty(RollingWindowNovelty):
 
     def __init__(
         self,
-        num_features: int,
+        num_features: int | None = None,
         window: int = 50,
         *,
         bandwidth: float | Sequence[float] = 0.1,
         batch_shape: Sequence[int] = (),
         device: torch.device | str | None = None,
     ) -> None:
-        super().__init__(num_features, window, batch_shape=batch_shape, device=device)
+        super().__init__(None, window, batch_shape=batch_shape, device=device)
         bandwidth = torch.as_tensor(bandwidth, dtype=torch.float32, device=device)
-        if (bandwidth <= 0).any() or bandwidth.numel() not in (1, self.num_features):
+        if (bandwidth <= 0).any() or bandwidth.ndim > 1:
+            raise ValueError(f"bandwidth must be positive, one value or one per feature, got {bandwidth.tolist()}.")
+        self.register_buffer("bandwidth", bandwidth)
+        if num_features is not None:
+            self._allocate(int(num_features))
+
+    def _allocate(self, num_features: int) -> None:
+        if self.bandwidth.numel() not in (1, num_features):
             raise ValueError(
-                f"bandwidth must be positive, one value or {self.num_features} values, got {bandwidth.tolist()}."
+                f"bandwidth must be positive, one value or {num_features} values, got {self.bandwidth.tolist()}."
             )
-        self.register_buffer("bandwidth", bandwidth.expand(self.num_features).clone())
+        super()._allocate(num_features)
+        self.bandwidth = self.bandwidth.expand(num_features).clone()
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """``-sum_i k(s, s_i)``: higher = rarer; zeros while the window is empty."""
+        if self.num_features is None:
+            return states.new_zeros(states.shape[:-1])
         states = self._check_shape(states)
         stored = self.window_states()
         scaled_distance = (states.unsqueeze(-2) - stored) / self.bandwidth
