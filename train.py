@@ -9,9 +9,10 @@ import json
 import logging
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from torchrl_mbe.app import ConfigError, train
+from torchrl_mbe.app import ConfigError, summary_line, train
 
 log = logging.getLogger("train")
 
@@ -23,6 +24,7 @@ def main(cfg: DictConfig) -> float | None:
     except ConfigError as error:
         raise SystemExit(f"Error: {error}") from None
     log.info("Summary:\n%s", json.dumps(summary, indent=2))
+    log.info(summary_line(summary, HydraConfig.get().runtime.output_dir))  # the last line: solved?, time, where
     return summary["final_eval_return"]
 
 

@@ -47,6 +47,8 @@ from torchrl.envs import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
+from plain_reference import PlainConfig
+from plain_reference import run as run_plain_reference
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
 from torchrl_mbe.app import train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
@@ -85,10 +87,11 @@ class Budget:
     collector_steps: int
     train_frames: int
     train_repeats: int
+    reference_frames: int
 
 
-FULL = Budget(warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3)
-QUICK = Budget(warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1)
+FULL = Budget(warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3, reference_frames=20_000)
+QUICK = Budget(warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1, reference_frames=3000)
 
 
 @dataclass
@@ -255,6 +258,45 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
     return results
 
 
+def default_config(*overrides: str) -> DictConfig:
+    """The app's default config, without evaluation or logging, and ``overrides``."""
+    quiet = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000")
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        return compose("config", overrides=[*quiet, *overrides])
+
+
+def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
+    """(f) The default MountainCar config through ``train(cfg)`` beside ``bench/plain_reference.py``.
+
+    Both run the same schedule (batches of 256, one Q and one dynamics update every 4
+    frames, 3-step targets, the same exploring rule) for ``reference_frames`` frames
+    from a cold start, with 1 env (16 frames per batch) and 16 envs (64 frames per
+    batch: the torch-batched env in the app, gymnasium's SyncVectorEnv in the
+    reference), each variant timed ``train_repeats`` times in alternation.
+    """
+    frames = budget.reference_frames
+    variants = {(exploration, envs, per_batch) for exploration in ("gaussian", "egreedy") for envs, per_batch in ((1, 16), (16, 64))}
+    app, plain = {v: [] for v in variants}, {v: [] for v in variants}
+    for _ in range(budget.train_repeats):
+        for exploration, envs, per_batch in sorted(variants):
+            cfg = default_config(
+                f"exploration={exploration}", f"env.num_envs={envs}", f"collector.frames_per_batch={per_batch}", f"train.max_frames={frames}"
+            )
+            app[exploration, envs, per_batch].append(training_frames_per_s(cfg))
+            reference = PlainConfig(exploration=exploration, num_envs=envs, frames_per_batch=per_batch, max_frames=frames, n_steps=cfg.algo.n_steps)
+            plain[exploration, envs, per_batch].append(run_plain_reference(reference)["frames_per_s"])
+    results = []
+    for exploration, envs, per_batch in sorted(variants):
+        name = f"{exploration}, N={envs}"
+        app_fps, plain_fps = statistics.median(app[exploration, envs, per_batch]), statistics.median(plain[exploration, envs, per_batch])
+        results += [
+            Measurement("reference", f"{name}: train(cfg)", app_fps, "frames/s"),
+            Measurement("reference", f"{name}: plain PyTorch reference", plain_fps, "frames/s"),
+            Measurement("reference", f"{name}: train(cfg) / plain", app_fps / plain_fps, "x"),
+        ]
+    return results
+
+
 def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     """(e) Milliseconds of each part of one frame of the paper's per-step loop (N=1, eps=1).
 
@@ -305,6 +347,7 @@ SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
     "collection": bench_collection,
     "training": bench_training_loop,
     "breakdown": bench_loop_breakdown,
+    "reference": bench_against_plain_reference,
 }
 """Run in order; each returns its figures, named after the section."""
 

@@ -41,3 +41,11 @@ def test_n_step_transitions_stop_at_the_episode_end_and_bootstrap_only_through_a
     assert stored[SUCCESSOR_KEY][:3].flatten().tolist() == [1.0, 2.0, 3.0]  # the dynamics model's 1-step target
     assert set(stored.keys(True, True)) >= {"observation", "action", ("next", "reward"), "steps_to_next_obs"}
     assert "episode_reward" not in stored.keys() and ("next", "original_reward") not in stored.keys(True)
+
+
+def test_learning_rate_decays_linearly_after_learning_starts_and_then_stays(compose_config):
+    from torchrl_mbe.app.dqn import q_learning_rate
+
+    algo = compose_config("algo.lr=0.01", "algo.lr_decay_frames=1000", "algo.lr_end_factor=0.1", "algo.learning_starts=100").algo
+    assert [round(q_learning_rate(algo, frames), 6) for frames in (0, 100, 600, 1100, 5000)] == [0.01, 0.01, 0.0055, 0.001, 0.001]
+    assert q_learning_rate(compose_config().algo, 10_000) == compose_config().algo.lr  # no decay by default

@@ -128,6 +128,9 @@ def test_train_py_runs_and_prints_a_summary(tmp_path, run_app):
     assert result.returncode == 0, result.stderr
     assert '"method": "dqn+gaussian"' in result.stderr + result.stdout
     assert (tmp_path / "run" / "summary.json").exists()
+    last_line = (result.stdout + result.stderr).strip().splitlines()[-1]
+    assert "SOLVED: final greedy return" in last_line and f"Run directory: {tmp_path}/run" in last_line
+    assert "\x1b[" not in result.stdout + result.stderr  # no ANSI colour codes when piped
     bad = run_app("exploration.window=1", f"hydra.run.dir={tmp_path}/bad", cwd=tmp_path)
     assert bad.returncode == 1
     assert "Error: exploration.window=1" in bad.stderr and "Traceback" not in bad.stderr
@@ -219,3 +222,17 @@ def test_a_default_run_makes_no_network_connection(tmp_path, run_app, logger):
     result = run_app(f"logger={logger}", f"hydra.run.dir={tmp_path}/run", "train.max_frames=200", cwd=tmp_path, env=env)
     assert result.returncode == 0, result.stderr
     assert not netlog.exists() or netlog.read_text() == ""
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error on a machine without CUDA")
+def test_device_cuda_without_a_gpu_is_refused_before_anything_runs(tmp_path, compose_config):
+    with pytest.raises(ConfigError, match="device='cuda': CUDA is not available on this machine"):
+        train(compose_config("device=cuda"), tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU")
+@pytest.mark.parametrize("explorer", ["gaussian", "egreedy"])
+def test_a_run_on_cuda_trains_end_to_end(tmp_path, compose_config, explorer):
+    summary = train(compose_config("device=cuda", f"exploration={explorer}", "env.num_envs=4", "collector.frames_per_batch=32"), tmp_path)
+    assert summary["frames"] >= 300 and summary["q_updates"] > 0 and summary["final_eval_return"] is not None

@@ -11,6 +11,8 @@ from matplotlib.image import imread
 
 from torchrl_mbe.envs.registry import TASKS
 from torchrl_mbe.report import load_runs, main
+from torchrl_mbe.report.figures import mean_curve
+from torchrl_mbe.report.runs import group_runs
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MOUNTAINCAR = TASKS["mountaincar"].bounds
@@ -27,6 +29,7 @@ def write_run(
     final_eval: float | None = None,
     evaluations: list[float] | None = None,
     states: np.ndarray | None = None,
+    experiment: dict | None = None,
 ) -> Path:
     """A run directory in the training app's format."""
     run_dir.mkdir(parents=True)
@@ -35,7 +38,7 @@ def write_run(
     frames = np.cumsum(lengths)
     summary = {
         "env": env, "method": method, "seed": seed, "frames": int(frames[-1]), "episodes": len(returns),
-        "wall_time_s": 12.5, "final_eval_return": final_eval, "solved_threshold": threshold,
+        "wall_time_s": 12.5, "final_eval_return": final_eval, "solved_threshold": threshold, **(experiment or {}),
     }
     (run_dir / "summary.json").write_text(json.dumps(summary))
     rows = ["episode,frames,return,length,reached_goal,eps,wall_time_s"]
@@ -197,6 +200,23 @@ class TestReport:
         runs = load_runs(runs_dir)
         assert len(runs) == 9
         assert sum(run.is_exploration for run in runs) == 5
+
+
+class TestGrouping:
+    def test_runs_of_different_configs_never_merge_and_labels_count_distinct_seeds(self, tmp_path):
+        returns = np.full(5, -200.0)
+        for seed in (0, 1):
+            write_run(tmp_path / f"a{seed}", "dqn+gaussian", seed, returns, experiment={"tag": "default", "config_id": "aaaa"})
+        write_run(tmp_path / "b0", "dqn+gaussian", 0, returns, experiment={"tag": "sweep", "config_id": "bbbb"})
+        groups = group_runs(load_runs(tmp_path))
+        assert {label: [r.seed for r in runs] for label, runs in groups.items()} == {
+            "dqn+gaussian [default aaaa]": [0, 1],
+            "dqn+gaussian [sweep bbbb]": [0],
+        }
+
+    def test_curves_of_unequal_length_are_averaged_over_the_runs_still_going(self):
+        mean, low, high = mean_curve([np.array([1.0, 2.0, 3.0]), np.array([5.0])])
+        assert mean.tolist() == [3.0, 2.0, 3.0] and low.tolist() == [1.0, 2.0, 3.0] and high.tolist() == [5.0, 2.0, 3.0]
 
 
 class TestErrors:

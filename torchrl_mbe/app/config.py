@@ -101,6 +101,8 @@ class DQNConfig:
     gamma: float = setting(0.99, DISCOUNT)
     n_steps: int = setting(1, POSITIVE_INT)  # n-step returns (1: the paper)
     lr: float = setting(2e-3, POSITIVE)  # Adam
+    lr_decay_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # linear decay over these frames (after learning_starts)
+    lr_end_factor: float = setting(1.0, FRACTION)  # the learning rate ends at lr * lr_end_factor
     batch_size: int = setting(256, POSITIVE_INT)
     learning_starts: int = setting(1000, NON_NEGATIVE_INT)  # frames collected before the first update
     updates_per_frame: float = setting(0.25, NON_NEGATIVE)  # gradient steps per collected frame (the paper: 1)

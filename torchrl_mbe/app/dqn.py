@@ -302,6 +302,8 @@ def learn_from_new_frames(
         return
     if agent.explorer is not None:
         agent.explorer.step(min(new_frames, frames - algo.learning_starts))
+    for group in agent.q_step.optimizer.param_groups:
+        group["lr"] = q_learning_rate(algo, frames)
     progress.q_update_credit += new_frames * algo.updates_per_frame
     while progress.q_update_credit >= 1:
         if progress.q_updates == 0 and agent.q_input_norm is not None:
@@ -312,6 +314,17 @@ def learn_from_new_frames(
         every = run.cfg.logger.log_every_updates
         if every and progress.q_updates % every == 0:
             log_updates(loss_q, agent, run)
+
+
+def q_learning_rate(algo: DictConfig, frames: int) -> float:
+    """``algo.lr``, decayed linearly to ``lr * lr_end_factor`` over ``lr_decay_frames`` frames after ``learning_starts``.
+
+    A function of the frame count, so a resumed run continues the same schedule.
+    """
+    if algo.lr_decay_frames is None:
+        return algo.lr
+    done = min(max(frames - algo.learning_starts, 0) / algo.lr_decay_frames, 1.0)
+    return algo.lr * (1.0 - done * (1.0 - algo.lr_end_factor))
 
 
 @torch.no_grad()

@@ -76,6 +76,7 @@ def _make_wandb_logger(run_dir: Path, cfg: DictConfig) -> WandbLogger:
         # wandb 0.31 probes its telemetry host from the Python process even in offline mode
         # (its process-wide settings stay online); this switch turns that probe off.
         os.environ.setdefault("WANDB_ERROR_REPORTING", "false")
+    os.environ.setdefault("WANDB_SILENT", "true")  # no run-history block on the console; the CSV tables hold it
     logger = WandbLogger(
         exp_name=run_dir.name,
         offline=False,  # TorchRL's offline=True rewrites WANDB_MODE; pass the mode instead

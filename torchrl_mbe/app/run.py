@@ -397,6 +397,7 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
     final = None
     try:
         if not interrupt.requested and episodes:
+            log.info("Final greedy evaluation: %d episodes (Ctrl-C stops it; the checkpoint is saved).", episodes)
             final = evaluate(run.agent.actor, run.eval_env, episodes, run.env_id, description=f"final greedy evaluation ({episodes} episodes)")
     except KeyboardInterrupt:
         interrupt.requested = True
@@ -411,9 +412,7 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
     run.progress.finished = True
     save_checkpoint(run)
     run.logger.close()
-    summary = write_summary(run, final)
-    log.info(summary_line(summary, run.run_dir))
-    return summary
+    return write_summary(run, final)
 
 
 def write_summary(run: Run, final: dict | None) -> dict:
@@ -450,7 +449,7 @@ def write_summary(run: Run, final: dict | None) -> dict:
     return summary
 
 
-def summary_line(summary: dict, run_dir: Path) -> str:
+def summary_line(summary: dict, run_dir: Path | str) -> str:
     """One line a user reads at the end of a run: solved or not, the returns, time and where the files are."""
     final, threshold = summary["final_eval_return"], summary["solved_threshold"]
     if final is None:

@@ -14,7 +14,7 @@ from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import Run, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_coverage", "save_figure"]
+__all__ = ["plot_learning_curves", "plot_coverage", "mean_curve", "save_figure"]
 
 logger = logging.getLogger(__name__)
 
@@ -40,16 +40,14 @@ def plot_learning_curves(
         curves = [running_average(r.returns, window) for r in runs if len(r.returns)]
         if not curves:
             continue
-        length = max(len(c) for c in curves)
-        stacked = np.full((len(curves), length), np.nan)
-        for row, curve in zip(stacked, curves):
-            row[: len(curve)] = curve
-        episodes = np.arange(1, length + 1)
+        mean, low, high = mean_curve(curves)
+        episodes = np.arange(1, len(mean) + 1)
         seeds = len({run.seed for run in runs})
+        shortest = min(len(c) for c in curves)
         label = f"{method} ({seeds} seed{'s' * (seeds > 1)}"
-        label += ")" if min(len(c) for c in curves) == length else f"; after episode {min(len(c) for c in curves)}: runs still going)"
-        ax.plot(episodes, np.nanmean(stacked, 0), color=colors[method], label=label)
-        ax.fill_between(episodes, np.nanmin(stacked, 0), np.nanmax(stacked, 0), color=colors[method], alpha=0.2, linewidth=0)
+        label += ")" if shortest == len(mean) else f"; after episode {shortest}: the runs still going)"
+        ax.plot(episodes, mean, color=colors[method], label=label)
+        ax.fill_between(episodes, low, high, color=colors[method], alpha=0.2, linewidth=0)
         plotted = True
     if not plotted:
         return None
@@ -62,6 +60,22 @@ def plot_learning_curves(
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     return save_figure(fig, path)
+
+
+def mean_curve(curves: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean, min and max over ``curves`` at each index, over the curves that reach it.
+
+    Examples:
+        >>> import numpy as np
+        >>> from torchrl_mbe.report.figures import mean_curve
+        >>> mean, low, high = mean_curve([np.array([1.0, 2.0]), np.array([3.0])])
+        >>> mean.tolist(), high.tolist()
+        ([2.0, 2.0], [3.0, 2.0])
+    """
+    stacked = np.full((len(curves), max(len(c) for c in curves)), np.nan)
+    for row, curve in zip(stacked, curves):
+        row[: len(curve)] = curve
+    return np.nanmean(stacked, 0), np.nanmin(stacked, 0), np.nanmax(stacked, 0)
 
 
 def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: EnvBounds, bins: int, path: Path) -> Path:
