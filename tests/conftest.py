@@ -32,8 +32,11 @@ QUICK = (
     "algo.learning_starts=100",
     "eval.episodes=0",
     "eval.final_episodes=1",
+    "env.num_envs=1",
+    "collector.frames_per_batch=16",
+    "train.stop_when_solved=false",
 )
-"""A few hundred frames: every part runs, nothing is learned."""
+"""A few hundred frames on one env, 16 frames per batch: every part runs, nothing is learned."""
 
 
 @pytest.fixture

@@ -38,7 +38,7 @@ def test_batched_envs_and_prioritized_replay(tmp_path, compose_config):
 
 
 def test_paper_preset_decays_eps_by_0_9995_per_update(tmp_path, compose_config, read_table):
-    cfg = compose_config("experiment=paper_mountaincar", "algo.learning_starts=100", "train.max_frames=250")
+    cfg = compose_config("experiment=paper_mountaincar", "algo.learning_starts=100", "train.max_frames=250", "collector.frames_per_batch=1")
     assert cfg.algo.num_cells == [48] and cfg.algo.hard_update_interval == 8 and cfg.algo.lr == 0.05
     train(cfg, tmp_path)
     last = read_table(tmp_path, "episodes")[-1]
