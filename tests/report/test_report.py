@@ -219,6 +219,17 @@ class TestGrouping:
         assert mean.tolist() == [3.0, 2.0, 3.0] and low.tolist() == [1.0, 2.0, 3.0] and high.tolist() == [5.0, 2.0, 3.0]
 
 
+    def test_greedy_table_counts_solved_seeds_and_time_to_solved(self, tmp_path):
+        returns = np.full(5, -150.0)
+        outcomes = [(-105.0, True, 30000, 60.0), (-120.0, False, None, None)]
+        for seed, (final, solved, frames, seconds) in enumerate(outcomes):
+            write_run(tmp_path / f"s{seed}", "dqn+gaussian", seed, returns, final_eval=final, experiment={
+                "solved": solved, "best_eval_return": -104.0, "solved_at_frames": frames, "solved_at_wall_time_s": seconds})
+        main([str(tmp_path), "--out", str(tmp_path / "report")])
+        row = table_row((tmp_path / "report" / "results.md").read_text(), "### Greedy evaluations", "dqn+gaussian")
+        assert row[2:6] == ["1/2", "-112.5 [-105.0, -120.0]", "-104.0 [-104.0, -104.0]", "30000 [30000, –]"]
+
+
 class TestErrors:
     def run_main(self, *args: str) -> str:
         with pytest.raises(SystemExit) as excinfo:

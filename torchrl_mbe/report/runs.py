@@ -28,7 +28,7 @@ import csv
 import json
 import logging
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +61,7 @@ class Run:
     visited_episodes: np.ndarray | None = None
     tag: str | None = None  # the experiment the run belongs to (summaries of 0.1.0 lack both)
     config_id: str | None = None
+    summary: dict = field(default_factory=dict)  # summary.json as written (see torchrl_mbe.rundir.SUMMARY_FIELDS)
 
     @property
     def is_exploration(self) -> bool:
@@ -185,6 +186,7 @@ def _read_run(run_dir: Path) -> Run:
         visited_episodes=visited_episodes,
         tag=summary.get("tag"),
         config_id=summary.get("config_id"),
+        summary=summary,
     )
 
 

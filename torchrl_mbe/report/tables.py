@@ -75,6 +75,34 @@ def _learning_section(groups: dict[str, list[Run]], window: int) -> list[str]:
     return [f"### Learning ({solved_at})", "", *_table(header, rows), ""]
 
 
+def _greedy_section(groups: dict[str, list[Run]]) -> list[str]:
+    """Greedy evaluations from the runs' summaries: solved or not at the end, best, and how fast."""
+    threshold = solved_threshold(groups)
+    rows = []
+    for method, runs in groups.items():
+        summaries = [r.summary for r in runs]
+        solved = [s.get("solved") for s in summaries]
+        rows.append(
+            [
+                method,
+                ", ".join(str(r.seed) for r in runs),
+                f"{sum(v is True for v in solved)}/{len(runs)}",
+                _mean_and_seeds([r.final_eval_return for r in runs]),
+                _mean_and_seeds([s.get("best_eval_return") for s in summaries]),
+                _mean_and_seeds([s.get("solved_at_frames") for s in summaries], 0),
+                _mean_and_seeds([s.get("solved_at_wall_time_s") for s in summaries], 0),
+                _mean_and_seeds([s.get("wall_time_s") for s in summaries], 0),
+                _mean_and_seeds([s.get("frames_per_s") for s in summaries], 0),
+            ]
+        )
+    header = [
+        "method", "seeds", "solved (final greedy >= threshold)", "final greedy eval", "best periodic greedy eval",
+        "frames to first solved eval", "seconds to first solved eval", "run seconds", "frames/s",
+    ]
+    at = "" if threshold is None else f" (threshold {threshold:g})"
+    return [f"### Greedy evaluations{at}", "", *_table(header, rows), ""]
+
+
 def _exploration_section(
     groups: dict[str, list[Run]], bounds: EnvBounds | None, fitted: bool, window: int, bins: int
 ) -> list[str]:
@@ -124,6 +152,10 @@ _DEFINITIONS = """\
 
 - `mean [per seed]`: the mean is over the seeds that have a value; `–` means none
   (never reached the goal, never solved, no evaluation).
+- Greedy evaluations: from each run's `summary.json`. *Final* is the 100-episode greedy
+  evaluation at the end of the run, *best periodic* the best of the evaluations during it,
+  *first solved eval* the first periodic evaluation at or above the threshold (where
+  `train.stop_when_solved` ends the run); `–` means never.
 - Running average at episode i: mean return of episodes max(1, i-{w}+1) .. i, so curves
   start at episode 1. *Best* average only counts windows of {w} episodes (all of them
   if the run is shorter); *final* is the last {w} episodes.
@@ -147,6 +179,7 @@ def _env_section(
     lines, written = [f"## {env}", ""], []
     learning = group_runs([r for r in runs if not r.is_exploration])
     if learning:
+        lines += _greedy_section(learning)
         lines += _learning_section(learning, window)
         figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{file_stem(env)}.png")
         if figure is not None:
