@@ -42,7 +42,8 @@ class PlainConfig:
     frames_per_batch: int = 16
     n_steps: int = 3
     gamma: float = 0.99
-    hidden_size: int = 64
+    hidden_size: int = 64  # Q-network: two hidden layers of this width
+    dynamics_hidden_size: int = 64  # dynamics model: two hidden layers of this width
     q_lr: float = 2e-3
     batch_size: int = 256
     max_grad_norm: float = 10.0
@@ -207,7 +208,7 @@ class Agent:
         self.q_updates = self.dynamics_updates = 0
         self.dynamics = None
         if cfg.exploration == "gaussian":
-            self.dynamics = DynamicsModel(obs_dim, num_actions, cfg.hidden_size)
+            self.dynamics = DynamicsModel(obs_dim, num_actions, cfg.dynamics_hidden_size)
             self.dynamics_optimizer = torch.optim.Adam(self.dynamics.parameters(), lr=cfg.dynamics_lr)
             self.windows = np.zeros((cfg.num_envs, cfg.window, obs_dim), np.float64)
             self.visited = 0

@@ -265,11 +265,44 @@ def default_config(*overrides: str) -> DictConfig:
         return compose("config", overrides=[*quiet, *overrides])
 
 
+def plain_config_of(cfg: DictConfig) -> PlainConfig:
+    """The plain reference's settings for the app's composed ``cfg`` (MountainCar, one hidden width)."""
+    algo, dynamics = cfg.algo, cfg.dynamics
+    if len({*algo.num_cells}) != 1 or len({*dynamics.num_cells}) != 1 or algo.target_update != "hard" or not algo.double_dqn:
+        raise ValueError("the plain reference implements equal hidden layers, hard target copies and double DQN only")
+    return PlainConfig(
+        num_envs=cfg.env.num_envs,
+        exploration=cfg.exploration.name,
+        max_frames=cfg.train.max_frames,
+        frames_per_batch=cfg.collector.frames_per_batch,
+        n_steps=algo.n_steps,
+        gamma=algo.gamma,
+        hidden_size=algo.num_cells[0],
+        dynamics_hidden_size=dynamics.num_cells[0],
+        q_lr=algo.lr,
+        batch_size=algo.batch_size,
+        max_grad_norm=algo.max_grad_norm,
+        target_update_interval=algo.hard_update_interval,
+        buffer_size=cfg.buffer.size,
+        learning_starts=algo.learning_starts,
+        updates_per_frame=algo.updates_per_frame,
+        eps_init=algo.eps_init,
+        eps_end=algo.eps_end,
+        eps_annealing_frames=algo.eps_annealing_frames,
+        window=cfg.exploration.window if cfg.exploration.name == "gaussian" else 50,
+        dynamics_lr=dynamics.lr,
+        dynamics_batch_size=dynamics.batch_size,
+        dynamics_learning_starts=dynamics.learning_starts,
+        dynamics_updates_per_frame=dynamics.updates_per_frame,
+        seed=cfg.seed,
+    )
+
+
 def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     """(f) The default MountainCar config through ``train(cfg)`` beside ``bench/plain_reference.py``.
 
-    Both run the same schedule (batches of 256, one Q and one dynamics update every 4
-    frames, 3-step targets, the same exploring rule) for ``reference_frames`` frames
+    Both run the same networks, schedule, targets and exploring rule (the reference
+    gets every setting from the composed config, :func:`plain_config_of`) for ``reference_frames`` frames
     from a cold start, with 1 env (16 frames per batch) and 16 envs (64 frames per
     batch: the torch-batched env in the app, gymnasium's SyncVectorEnv in the
     reference), each variant timed ``train_repeats`` times in alternation.
@@ -283,7 +316,7 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
                 f"exploration={exploration}", f"env.num_envs={envs}", f"collector.frames_per_batch={per_batch}", f"train.max_frames={frames}"
             )
             app[exploration, envs, per_batch].append(training_frames_per_s(cfg))
-            reference = PlainConfig(exploration=exploration, num_envs=envs, frames_per_batch=per_batch, max_frames=frames, n_steps=cfg.algo.n_steps)
+            reference = plain_config_of(cfg)
             plain[exploration, envs, per_batch].append(run_plain_reference(reference)["frames_per_s"])
     results = []
     for exploration, envs, per_batch in sorted(variants):
