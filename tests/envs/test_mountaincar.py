@@ -156,3 +156,21 @@ def test_model_based_exploration_keeps_one_window_per_env_in_a_collector():
     assert observations.shape == (num_envs, 90, 2)
     torch.testing.assert_close(density.window_states(), observations[:, -50:])
     assert np.isfinite(density.score(observations[:, -1]).numpy()).all()
+
+
+def test_a_batched_rollout_gives_one_episode_per_env_even_when_they_end_at_different_times():
+    from tensordict.nn import TensorDictModule
+
+    from torchrl_mbe.envs import first_episodes, make_env
+
+    def push_along_velocity(observation: torch.Tensor) -> torch.Tensor:  # pumps energy: reaches the flag in ~100 steps
+        return torch.nn.functional.one_hot(torch.where(observation[..., 1] >= 0, 2, 0), 3)
+
+    env = make_env("mountaincar", num_envs=8, seed=3)
+    policy = TensorDictModule(push_along_velocity, in_keys=["observation"], out_keys=["action"])
+    rollout = env.rollout(1000, policy, break_when_any_done=False, break_when_all_done=True)
+    episodes = first_episodes(rollout)
+    lengths = [episode.length for episode in episodes]
+    assert len(episodes) == 8 and all(episode.terminated for episode in episodes)
+    assert len(set(lengths)) > 1 and max(lengths) == rollout.shape[-1] < 200  # the last env to finish ends the rollout
+    assert [episode.episode_return for episode in episodes] == [-float(n) for n in lengths]

@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name
 from torchrl_mbe.app.loggers import RunLogger
-from torchrl_mbe.envs import finished_episodes, make_env, reached_goal, resolve_env_id, task_of
+from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, reached_goal, resolve_env_id, task_of
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
@@ -104,7 +104,7 @@ class Run:
     run_dir: Path
     env_id: str
     env: EnvBase
-    eval_env: EnvBase
+    eval_env: EnvBase  # ``eval.episodes`` copies: one periodic evaluation is one batched rollout
     agent: Agent
     progress: Progress
     logger: RunLogger
@@ -134,7 +134,7 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
         RunFinished: ``resume`` on a run that already spent its (new) budget.
     """
     env_id = resolve_env_id(cfg.env.name)
-    eval_env = make_env(cfg.env.name, seed=cfg.seed + 10_000, device=cfg.device)
+    eval_env = make_env(cfg.env.name, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000, device=cfg.device)
     progress = _start_or_resume(cfg, run_dir, agent, replay_buffer)
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
     bar = _progress_bar(cfg, progress)
@@ -279,7 +279,7 @@ def _record_visited_states(batch: TensorDictBase, progress: Progress) -> None:
 def _periodic_evaluation(run: Run) -> None:
     """Greedy evaluation; keeps the best policy so far and notes the first solved evaluation."""
     progress = run.progress
-    result = evaluate(run.agent.actor, run.eval_env, run.cfg.eval.episodes, run.env_id)
+    result = evaluate(run.agent.actor, run.eval_env, run.env_id)
     _log_evaluation(result, run)
     mean = result["eval_return_mean"]
     if progress.best_eval_return is None or mean > progress.best_eval_return:
@@ -291,21 +291,20 @@ def _periodic_evaluation(run: Run) -> None:
         log.info("Solved at %d frames (%.1f s): greedy return %.1f >= %.1f", progress.frames, progress.wall_time_s, mean, threshold)
 
 
-def evaluate(actor: TensorDictModuleBase, env: EnvBase, episodes: int, env_id: str, *, description: str | None = None) -> dict:
-    """Greedy (``ExplorationType.DETERMINISTIC``) returns over ``episodes`` episodes.
+def evaluate(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> dict:
+    """Greedy (``ExplorationType.DETERMINISTIC``) returns of one episode in each copy of a batched ``env``.
 
-    With a ``description``, a progress bar says what is being evaluated.
+    All copies step together until each has finished one episode (one rollout,
+    whatever the number of episodes).
     """
-    returns, successes = [], []
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        for _ in tqdm(range(episodes), desc=description, unit="ep", disable=None if description else True, leave=False):
-            episode = finished_episodes(play_episode(env, actor))[-1]
-            returns.append(episode.episode_return)
-            successes.append(reached_goal(env_id, episode))
+        rollout = env.rollout(max_steps=100_000, policy=actor, break_when_any_done=False, break_when_all_done=True)
+    episodes = first_episodes(rollout)
+    returns = [episode.episode_return for episode in episodes]
     return {
         "eval_return_mean": float(np.mean(returns)),
         "eval_return_std": float(np.std(returns)),
-        "eval_success_rate": float(np.mean(successes)),
+        "eval_success_rate": float(np.mean([reached_goal(env_id, episode) for episode in episodes])),
     }
 
 
@@ -397,8 +396,9 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
     final = None
     try:
         if not interrupt.requested and episodes:
-            log.info("Final greedy evaluation: %d episodes (Ctrl-C stops it; the checkpoint is saved).", episodes)
-            final = evaluate(run.agent.actor, run.eval_env, episodes, run.env_id, description=f"final greedy evaluation ({episodes} episodes)")
+            log.info("Final greedy evaluation: %d episodes side by side (Ctrl-C stops it; the checkpoint is saved).", episodes)
+            final_env = make_env(run.cfg.env.name, num_envs=episodes, seed=run.cfg.seed + 20_000, device=run.cfg.device)
+            final = evaluate(run.agent.actor, final_env, run.env_id)
     except KeyboardInterrupt:
         interrupt.requested = True
     if interrupt.requested:

@@ -3,11 +3,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
 from tensordict import TensorDictBase
 
 from torchrl_mbe.envs.registry import task_of
 
-__all__ = ["Episode", "finished_episodes", "reached_goal"]
+__all__ = ["Episode", "finished_episodes", "first_episodes", "reached_goal"]
 
 @dataclass(frozen=True)
 class Episode:
@@ -58,5 +59,39 @@ def finished_episodes(batch: TensorDictBase) -> list[Episode]:
             ended["step_count"].reshape(-1).tolist(),
             ended["terminated"].reshape(-1).tolist(),
             ended["reward"].reshape(-1).tolist(),
+        )
+    ]
+
+
+def first_episodes(rollout: TensorDictBase) -> list[Episode]:
+    """The first episode of every env of a batched rollout of shape ``(envs, time)`` (or ``(time,)``).
+
+    Meant for ``env.rollout(..., break_when_any_done=False, break_when_all_done=True)``,
+    which steps each env until its first episode ends and then repeats that env's
+    last step until every env is done (so later rows are copies, not new episodes).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.envs import ExplorationType, set_exploration_type
+        >>> from torchrl_mbe.envs import first_episodes, make_env
+        >>> env = make_env("mountaincar", num_envs=3, seed=0)
+        >>> rollout = env.rollout(1000, break_when_any_done=False, break_when_all_done=True)
+        >>> [(episode.episode_return, episode.length) for episode in first_episodes(rollout)]
+        [(-200.0, 200), (-200.0, 200), (-200.0, 200)]
+    """
+    if rollout.ndim == 1:  # a single env
+        rollout = rollout.unsqueeze(0)
+    done = rollout["next", "done"].reshape(*rollout.shape)
+    if not done.any(-1).all():
+        raise ValueError("every env of the rollout must finish an episode (use break_when_all_done=True).")
+    end = done.int().argmax(-1)  # the first done step of each env
+    step = rollout["next"][torch.arange(rollout.shape[0]), end]
+    return [
+        Episode(float(episode_return), int(length), bool(terminated), float(reward))
+        for episode_return, length, terminated, reward in zip(
+            step["episode_reward"].reshape(-1).tolist(),
+            step["step_count"].reshape(-1).tolist(),
+            step["terminated"].reshape(-1).tolist(),
+            step["reward"].reshape(-1).tolist(),
         )
     ]

@@ -1,0 +1,47 @@
+"""Where the training loop's time goes: cProfile around ``train(cfg)``.
+
+    python bench/profile_loop.py                                   # the default config, 10,000 frames
+    python bench/profile_loop.py env.num_envs=1 collector.frames_per_batch=16 "algo.num_cells=[64,64]"
+
+Any Hydra override of the app applies; logging, evaluation and early stopping are
+off so that the profile shows the loop alone. Prints frames/s and the functions
+with the largest cumulative time. A benchmark tool, not a test.
+"""
+from __future__ import annotations
+
+import cProfile
+import pstats
+import sys
+import tempfile
+from pathlib import Path
+
+from hydra import compose, initialize_config_dir
+
+from torchrl_mbe.app import train
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+LOOP_ONLY = (
+    "logger=none",
+    "progress_bar=false",
+    "eval.episodes=0",
+    "eval.final_episodes=0",
+    "train.episodes=1000000",
+    "train.max_frames=10000",
+    "train.stop_when_solved=false",
+)
+
+
+def main(overrides: list[str], top: int = 30) -> None:
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
+        cfg = compose("config", overrides=[*LOOP_ONLY, *overrides])
+    profiler = cProfile.Profile()
+    with tempfile.TemporaryDirectory() as run_dir:
+        profiler.enable()
+        summary = train(cfg, run_dir)
+        profiler.disable()
+    print(f"{summary['frames']} frames, {summary['frames_per_s']} frames/s under the profiler")
+    pstats.Stats(profiler).sort_stats("cumulative").print_stats(top)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
