@@ -236,3 +236,14 @@ def test_device_cuda_without_a_gpu_is_refused_before_anything_runs(tmp_path, com
 def test_a_run_on_cuda_trains_end_to_end(tmp_path, compose_config, explorer):
     summary = train(compose_config("device=cuda", f"exploration={explorer}", "env.num_envs=4", "collector.frames_per_batch=32"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] > 0 and summary["final_eval_return"] is not None
+
+
+@pytest.mark.parametrize("buffer", ["uniform", "prioritized"])
+def test_a_run_creates_no_multiprocessing_semaphores_that_a_kill_would_leak(tmp_path, compose_config, monkeypatch, buffer):
+    import multiprocessing.synchronize
+
+    created = []
+    original = multiprocessing.synchronize.SemLock.__init__
+    monkeypatch.setattr(multiprocessing.synchronize.SemLock, "__init__", lambda self, *a, **k: (created.append(type(self)), original(self, *a, **k))[1])
+    summary = train(compose_config(f"buffer={buffer}", "progress_bar=true"), tmp_path)
+    assert summary["q_updates"] > 0 and created == []

@@ -218,11 +218,18 @@ def make_target_updater(algo: DictConfig, q_loss: DQNLoss) -> TargetNetUpdater:
 
 
 def make_replay_buffer(buffer: DictConfig, device: str) -> ReplayBuffer:
-    """Uniform ``TensorDictReplayBuffer`` or ``TensorDictPrioritizedReplayBuffer`` (TD-error priorities)."""
-    storage = LazyTensorStorage(buffer.size, device=device)
+    """Uniform ``TensorDictReplayBuffer`` or ``TensorDictPrioritizedReplayBuffer`` (TD-error priorities).
+
+    ``compilable=True`` keeps the buffer's counters in plain tensors instead of
+    multiprocessing values: the buffer never leaves this process, and a killed
+    run then leaves no semaphores behind.
+    """
+    storage = LazyTensorStorage(buffer.size, device=device, compilable=True)
     if buffer.name == "prioritized":
-        return TensorDictPrioritizedReplayBuffer(alpha=buffer.alpha, beta=buffer.beta, storage=storage, priority_key="td_error")
-    return TensorDictReplayBuffer(storage=storage)
+        return TensorDictPrioritizedReplayBuffer(
+            alpha=buffer.alpha, beta=buffer.beta, storage=storage, priority_key="td_error", compilable=True
+        )
+    return TensorDictReplayBuffer(storage=storage, compilable=True)
 
 
 class ReplayTransitions:

@@ -48,6 +48,7 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+tqdm.set_lock(threading.RLock())  # tqdm's default lock is a multiprocessing semaphore, left behind by a killed run
 
 CHECKPOINT_FORMAT = 2
 """Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1)."""
