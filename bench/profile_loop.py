@@ -13,27 +13,14 @@ import cProfile
 import pstats
 import sys
 import tempfile
-from pathlib import Path
 
-from hydra import compose, initialize_config_dir
+from throughput import default_config
 
 from torchrl_mbe.app import train
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
-LOOP_ONLY = (
-    "logger=none",
-    "progress_bar=false",
-    "eval.episodes=0",
-    "eval.final_episodes=0",
-    "train.episodes=1000000",
-    "train.max_frames=10000",
-    "train.stop_when_solved=false",
-)
-
 
 def main(overrides: list[str], top: int = 30) -> None:
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
-        cfg = compose("config", overrides=[*LOOP_ONLY, *overrides])
+    cfg = default_config("train.max_frames=10000", *overrides)
     profiler = cProfile.Profile()
     with tempfile.TemporaryDirectory() as run_dir:
         profiler.enable()

@@ -259,8 +259,8 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
 
 
 def default_config(*overrides: str) -> DictConfig:
-    """The app's default config, without evaluation or logging, and ``overrides``."""
-    quiet = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000")
+    """The app's default config with the loop alone (no logging, evaluation or early stop), and ``overrides``."""
+    quiet = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000", "train.stop_when_solved=false")
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose("config", overrides=[*quiet, *overrides])
 

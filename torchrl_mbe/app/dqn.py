@@ -34,17 +34,12 @@ from torchrl_mbe.app.run import (
     record_frames,
 )
 from torchrl_mbe.envs import MountainCarDynamics, make_env
-from torchrl_mbe.modules import (
-    AnnealedEGreedyModule,
-    DynamicsModel,
-    GaussianKernelNovelty,
-    ModelBasedExplorationPolicy,
-    NoveltyPlanner,
-    RollingGaussianDensity,
-    RollingWindowNovelty,
-    Standardize,
-    make_per_action_mlp,
-)
+from torchrl_mbe.modules.dynamics import DynamicsModel
+from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
+from torchrl_mbe.modules.networks import make_per_action_mlp
+from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.novelty import GaussianKernelNovelty, RollingGaussianDensity, RollingWindowNovelty
+from torchrl_mbe.modules.planner import NoveltyPlanner
 from torchrl_mbe.objectives import DynamicsLoss
 
 __all__ = ["DQNAgent", "build_dqn_agent", "make_replay_buffer", "ReplayTransitions", "train_dqn"]

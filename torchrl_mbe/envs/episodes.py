@@ -51,16 +51,7 @@ def finished_episodes(batch: TensorDictBase) -> list[Episode]:
     done = step["done"].reshape(-1)
     if not done.any():
         return []
-    ended = step[done]
-    return [
-        Episode(float(episode_return), int(length), bool(terminated), float(reward))
-        for episode_return, length, terminated, reward in zip(
-            ended["episode_reward"].reshape(-1).tolist(),
-            ended["step_count"].reshape(-1).tolist(),
-            ended["terminated"].reshape(-1).tolist(),
-            ended["reward"].reshape(-1).tolist(),
-        )
-    ]
+    return _episodes_ending_at(step[done])
 
 
 def first_episodes(rollout: TensorDictBase) -> list[Episode]:
@@ -85,13 +76,17 @@ def first_episodes(rollout: TensorDictBase) -> list[Episode]:
     if not done.any(-1).all():
         raise ValueError("every env of the rollout must finish an episode (use break_when_all_done=True).")
     end = done.int().argmax(-1)  # the first done step of each env
-    step = rollout["next"][torch.arange(rollout.shape[0]), end]
+    return _episodes_ending_at(rollout["next"][torch.arange(rollout.shape[0]), end])
+
+
+def _episodes_ending_at(last_steps: TensorDictBase) -> list[Episode]:
+    """One :class:`Episode` per ``("next", ...)`` entry of an episode's last step (a flat batch)."""
     return [
         Episode(float(episode_return), int(length), bool(terminated), float(reward))
         for episode_return, length, terminated, reward in zip(
-            step["episode_reward"].reshape(-1).tolist(),
-            step["step_count"].reshape(-1).tolist(),
-            step["terminated"].reshape(-1).tolist(),
-            step["reward"].reshape(-1).tolist(),
+            last_steps["episode_reward"].reshape(-1).tolist(),
+            last_steps["step_count"].reshape(-1).tolist(),
+            last_steps["terminated"].reshape(-1).tolist(),
+            last_steps["reward"].reshape(-1).tolist(),
         )
     ]
