@@ -12,8 +12,10 @@ report in :mod:`torchrl_mbe.report` build on them (docs/architecture.md).
 from torchrl_mbe.envs import SUPPORTED_ENVS, BatchedMountainCarEnv, MountainCarDynamics, make_env
 from torchrl_mbe.modules import (
     AnnealedEGreedyModule,
+    DiagonalGaussianDensity,
     DynamicsModel,
     GaussianKernelNovelty,
+    KNearestNovelty,
     ModelBasedExplorationPolicy,
     NoveltyPlanner,
     RollingGaussianDensity,
@@ -24,9 +26,11 @@ from torchrl_mbe.objectives import DynamicsLoss
 __all__ = [
     "AnnealedEGreedyModule",
     "BatchedMountainCarEnv",
+    "DiagonalGaussianDensity",
     "DynamicsLoss",
     "DynamicsModel",
     "GaussianKernelNovelty",
+    "KNearestNovelty",
     "ModelBasedExplorationPolicy",
     "MountainCarDynamics",
     "NoveltyPlanner",

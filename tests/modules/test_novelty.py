@@ -4,7 +4,7 @@ import pytest
 import torch
 from torch.distributions import MultivariateNormal
 
-from torchrl_mbe import GaussianKernelNovelty, RollingGaussianDensity
+from torchrl_mbe import DiagonalGaussianDensity, GaussianKernelNovelty, KNearestNovelty, RollingGaussianDensity
 
 
 def correlated_states(num: int) -> torch.Tensor:
@@ -148,7 +148,10 @@ def test_a_loaded_state_dict_scores_the_same(scored_before_saving):
 
 
 
-@pytest.mark.parametrize("scorer_cls", [RollingGaussianDensity, GaussianKernelNovelty])
+ALL_SCORERS = [RollingGaussianDensity, GaussianKernelNovelty, DiagonalGaussianDensity, KNearestNovelty]
+
+
+@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
 def test_scorers_infer_the_state_size_from_the_first_update_and_restore_into_a_fresh_one(scorer_cls):
     scorer = scorer_cls(window=20, batch_shape=(3,))
     assert torch.equal(scorer.score(torch.ones(5, 3, 4)), torch.zeros(5, 3))  # empty window: nothing is rarer
@@ -161,7 +164,8 @@ def test_scorers_infer_the_state_size_from_the_first_update_and_restore_into_a_f
     assert torch.allclose(fresh.score(probe), scorer.score(probe))
 
 
-def test_kernel_scorer_without_num_features_through_a_collector_with_batched_envs():
+@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
+def test_every_scorer_keeps_one_window_per_env_through_a_collector_with_batched_envs(scorer_cls):
     from torchrl.collectors import Collector
     from torchrl.modules import MLP, QValueActor
 
@@ -169,7 +173,7 @@ def test_kernel_scorer_without_num_features_through_a_collector_with_batched_env
 
     env = make_env("mountaincar", num_envs=4, seed=0)
     spec = env.action_spec_unbatched
-    novelty = GaussianKernelNovelty(window=50, bandwidth=0.1, batch_shape=(4,))
+    novelty = scorer_cls(window=50, batch_shape=(4,))
     actor = QValueActor(MLP(out_features=3, num_cells=[8]), spec=spec, in_keys=["observation"])
     policy = ModelBasedExplorationPolicy(actor, NoveltyPlanner(DynamicsModel(2, spec), novelty, spec))
     collector = Collector(env, policy, frames_per_batch=40, total_frames=-1)
@@ -177,3 +181,22 @@ def test_kernel_scorer_without_num_features_through_a_collector_with_batched_env
     assert novelty.num_features == 2 and novelty.num_stored == 10
     assert torch.equal(novelty.window_states(), batch["observation"])  # one window per env, in visiting order
     collector.shutdown()
+
+
+def test_diagonal_gaussian_is_the_sum_of_per_dimension_normal_log_densities():
+    window = torch.randn(40, 2, 3) * torch.tensor([1.0, 10.0, 0.1])
+    density = DiagonalGaussianDensity(window=40, batch_shape=(2,))
+    density.update(window)
+    states = torch.randn(5, 2, 3)
+    expected = -torch.distributions.Normal(window.double().mean(0), window.double().std(0)).log_prob(states.double()).sum(-1)
+    assert torch.allclose(density.score(states).double(), expected, atol=1e-4)
+
+
+def test_k_nearest_score_is_the_mean_scaled_distance_to_the_k_closest_stored_states():
+    stored = torch.tensor([[0.0, 0.0], [0.0, 2.0], [4.0, 0.0], [4.0, 2.0]])
+    novelty = KNearestNovelty(window=4, k=2)
+    novelty.update(stored)
+    scale = stored.std(0, correction=0)  # (2, 1) per dimension
+    state = torch.tensor([[1.0, 0.0]])
+    distances = ((state - stored) / scale).norm(dim=-1).sort().values
+    assert torch.allclose(novelty.score(state), distances[:2].mean().unsqueeze(0))

@@ -156,9 +156,22 @@ class KernelExploration(PlanningExploration):
     bandwidth: float = setting(0.1, POSITIVE)
 
 
+@dataclass
+class DiagonalExploration(PlanningExploration):
+    name: str = "diagonal"  # a Gaussian without correlations
+
+
+@dataclass
+class KNearestExploration(PlanningExploration):
+    name: str = "knn"  # mean scaled distance to the k nearest states of the window
+    k: int = setting(5, POSITIVE_INT)
+
+
 EXPLORERS: dict[str, type[ExplorationConfig]] = {
     "gaussian": GaussianExploration,
     "kernel": KernelExploration,
+    "diagonal": DiagonalExploration,
+    "knn": KNearestExploration,
     "egreedy": dataclasses.make_dataclass("EGreedyExploration", [("name", str, "egreedy")], bases=(ExplorationConfig,)),
     "none": dataclasses.make_dataclass("NoExploration", [("name", str, "none")], bases=(ExplorationConfig,)),
 }

@@ -38,7 +38,13 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.modules.networks import make_per_action_mlp
 from torchrl_mbe.modules.normalization import Standardize
-from torchrl_mbe.modules.novelty import GaussianKernelNovelty, RollingGaussianDensity, RollingWindowNovelty
+from torchrl_mbe.modules.novelty import (
+    DiagonalGaussianDensity,
+    GaussianKernelNovelty,
+    KNearestNovelty,
+    RollingGaussianDensity,
+    RollingWindowNovelty,
+)
 from torchrl_mbe.modules.planner import NoveltyPlanner
 from torchrl_mbe.objectives import DynamicsLoss
 
@@ -175,6 +181,10 @@ def make_novelty(exploration: DictConfig, observation_size: int, batch_shape: to
     kwargs = {"batch_shape": batch_shape, "device": device}
     if exploration.name == "gaussian":
         return RollingGaussianDensity(observation_size, exploration.window, **kwargs)
+    if exploration.name == "diagonal":
+        return DiagonalGaussianDensity(observation_size, exploration.window, **kwargs)
+    if exploration.name == "knn":
+        return KNearestNovelty(observation_size, exploration.window, k=exploration.k, **kwargs)
     return GaussianKernelNovelty(observation_size, exploration.window, bandwidth=exploration.bandwidth, **kwargs)
 
 

@@ -3,13 +3,21 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.modules.networks import init_linear_layers, make_per_action_mlp
 from torchrl_mbe.modules.normalization import Standardize
-from torchrl_mbe.modules.novelty import GaussianKernelNovelty, RollingGaussianDensity, RollingWindowNovelty
+from torchrl_mbe.modules.novelty import (
+    DiagonalGaussianDensity,
+    GaussianKernelNovelty,
+    KNearestNovelty,
+    RollingGaussianDensity,
+    RollingWindowNovelty,
+)
 from torchrl_mbe.modules.planner import NoveltyPlanner
 
 __all__ = [
     "AnnealedEGreedyModule",
+    "DiagonalGaussianDensity",
     "DynamicsModel",
     "GaussianKernelNovelty",
+    "KNearestNovelty",
     "ModelBasedExplorationPolicy",
     "NoveltyPlanner",
     "RollingGaussianDensity",

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import torch
 from torch import nn
 
-__all__ = ["RollingWindowNovelty", "RollingGaussianDensity", "GaussianKernelNovelty"]
+__all__ = ["RollingWindowNovelty", "RollingGaussianDensity", "GaussianKernelNovelty", "DiagonalGaussianDensity", "KNearestNovelty"]
 
 
 class RollingWindowNovelty(nn.Module):
@@ -316,3 +316,125 @@ class GaussianKernelNovelty(RollingWindowNovelty):
         stored = self.window_states()
         scaled_distance = (states.unsqueeze(-2) - stored) / self.bandwidth
         return -torch.exp(-0.5 * scaled_distance.square().sum(-1)).sum(-1)
+
+
+class DiagonalGaussianDensity(RollingWindowNovelty):
+    """Gaussian with a diagonal covariance fitted to the last ``window`` visited states.
+
+    ``score(s) = -log N(s | mu_F, diag(sigma_F^2))``: the paper's density without the
+    correlations between dimensions, so it needs no factorization (one mean and one
+    standard deviation per dimension, refitted lazily like
+    :class:`RollingGaussianDensity`) and never meets a singular matrix; variances
+    are floored at ``min_variance``.
+
+    Args:
+        num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
+        window (int): number of recent states fitted. Defaults to 50.
+
+    Keyword Args:
+        batch_shape (tuple of int): one window per batch element. Defaults to ``()``.
+        min_variance (float): floor on each variance. Defaults to ``1e-8``.
+        device (torch.device, optional): where the buffers live.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules import DiagonalGaussianDensity
+        >>> density = DiagonalGaussianDensity(window=50)
+        >>> density.update(torch.randn(100, 2))
+        >>> scores = density.score(torch.tensor([[0.0, 0.0], [5.0, 5.0]]))
+        >>> bool(scores[1] > scores[0])
+        True
+    """
+
+    def __init__(
+        self,
+        num_features: int | None = None,
+        window: int = 50,
+        *,
+        batch_shape: Sequence[int] = (),
+        min_variance: float = 1e-8,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__(None, window, batch_shape=batch_shape, device=device)
+        if min_variance <= 0:
+            raise ValueError(f"min_variance must be > 0, got {min_variance}.")
+        self.min_variance = float(min_variance)
+        if num_features is not None:
+            self._allocate(int(num_features))
+
+    def _allocate(self, num_features: int) -> None:
+        super()._allocate(num_features)
+        shape = (*self.batch_shape, num_features)
+        self.register_buffer("loc", torch.zeros(shape, dtype=torch.float64, device=self.num_seen.device))
+        self.register_buffer("scale", torch.ones(shape, dtype=torch.float64, device=self.num_seen.device))
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """``-log N(s | mu_F, diag(sigma_F^2))``: higher = rarer; zeros while the window is empty."""
+        if self.num_stored == 0:
+            return states.new_zeros(states.shape[:-1])
+        states = self._check_shape(states)
+        self._refit_if_stale()
+        z = (states.to(self.loc) - self.loc) / self.scale
+        log_density = -0.5 * z.square().sum(-1) - self.scale.log().sum(-1) - 0.5 * self.num_features * math.log(2 * math.pi)
+        return (-log_density).to(states.dtype)
+
+    def _refit(self) -> None:
+        stored = self.states[..., : self.num_stored, :].to(torch.float64)
+        self.loc.copy_(stored.mean(-2))
+        self.scale.copy_(stored.var(-2, correction=1 if stored.shape[-2] > 1 else 0).clamp_min(self.min_variance).sqrt())
+
+
+class KNearestNovelty(RollingWindowNovelty):
+    """Distance to the ``k`` nearest states of the window (a k-nearest-neighbour novelty).
+
+    ``score(s)`` is the mean distance from ``s`` to its ``k`` nearest neighbours
+    among the last ``window`` visited states, each dimension divided by its spread
+    over the window (so, like the Gaussian and unlike the kernel with a fixed
+    bandwidth, it is scale-free). Non-parametric: it sees several clusters where a
+    Gaussian sees one blob.
+
+    Args:
+        num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
+        window (int): number of recent states compared against. Defaults to 50.
+
+    Keyword Args:
+        k (int): neighbours averaged (at most the states stored). Defaults to 5.
+        batch_shape (tuple of int): one window per batch element. Defaults to ``()``.
+        min_scale (float): floor on each dimension's spread. Defaults to ``1e-6``.
+        device (torch.device, optional): where the buffers live.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules import KNearestNovelty
+        >>> novelty = KNearestNovelty(window=4, k=2)
+        >>> novelty.update(torch.tensor([[0.0, 0.0], [0.0, 1.0], [1.0, 0.0], [1.0, 1.0]]))
+        >>> scores = novelty.score(torch.tensor([[0.5, 0.5], [3.0, 3.0]]))
+        >>> bool(scores[1] > scores[0])
+        True
+    """
+
+    def __init__(
+        self,
+        num_features: int | None = None,
+        window: int = 50,
+        *,
+        k: int = 5,
+        batch_shape: Sequence[int] = (),
+        min_scale: float = 1e-6,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__(num_features, window, batch_shape=batch_shape, device=device)
+        if int(k) < 1:
+            raise ValueError(f"k must be a positive integer, got {k}.")
+        self.k = int(k)
+        self.min_scale = float(min_scale)
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """Mean scaled distance to the ``k`` nearest stored states: higher = rarer; zeros while the window is empty."""
+        if self.num_stored == 0:
+            return states.new_zeros(states.shape[:-1])
+        states = self._check_shape(states)
+        stored = self.window_states()
+        scale = stored.std(-2, correction=0, keepdim=True).clamp_min(self.min_scale)
+        distances = ((states.unsqueeze(-2) - stored) / scale).norm(dim=-1)
+        return distances.topk(min(self.k, stored.shape[-2]), dim=-1, largest=False).values.mean(-1)
