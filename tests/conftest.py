@@ -50,6 +50,17 @@ def compose_config():
     return compose_with
 
 
+@pytest.fixture
+def compose_default():
+    """``compose_default(*overrides)``: the app's config as ``python train.py`` composes it (CSV logging, no bar)."""
+
+    def compose_with(*overrides: str):
+        with initialize_config_dir(str(REPO / "conf"), version_base="1.3"):
+            return compose("config", overrides=["logger=csv", "progress_bar=false", *overrides])
+
+    return compose_with
+
+
 def quick_for(overrides) -> list[str]:
     """:data:`QUICK`, less its DQN settings when ``overrides`` pick REINFORCE."""
     return [o for o in QUICK if not ("algo=reinforce" in overrides and o.startswith("algo."))]

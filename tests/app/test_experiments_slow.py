@@ -1,4 +1,4 @@
-"""The paper's exploration-only experiment, end to end (minutes: run with ``pytest -m slow``)."""
+"""Experiments end to end, minutes each (``pytest -m slow``): exploration-only coverage, and the default runs solving."""
 from __future__ import annotations
 
 import numpy as np
@@ -29,3 +29,11 @@ def test_planning_with_the_learned_model_beats_random_actions(tmp_path, compose_
     random, random_coverage = explore(compose_config, tmp_path / "random", "exploration=egreedy")
     assert learned_coverage > 0.5 > 0.25 > random_coverage
     assert learned["first_success_episode"] is not None and random["first_success_episode"] is None
+
+
+
+@pytest.mark.parametrize("env", ["mountaincar", "cartpole", "acrobot"])
+def test_the_default_run_solves(tmp_path, compose_default, env):
+    """``python train.py env=<env>`` with seed 0 as a user runs it: its tuned settings, early stop, 100-episode check."""
+    summary = train(compose_default(f"env={env}", "seed=0"), tmp_path)
+    assert summary["solved"] is True, summary

@@ -236,6 +236,10 @@ class RollingGaussianDensity(RollingWindowNovelty):
         """``-log_prob(states)``: higher = rarer."""
         return -self.log_prob(states)
 
+    def _correlation(self, covariance: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+        """The correlation matrix the density uses (subclasses may simplify it)."""
+        return covariance / (std.unsqueeze(-1) * std.unsqueeze(-2))
+
     def _refit(self) -> None:
         """Mean, whitening matrix and normalizer of the window; slot order is fine, the fit ignores order."""
         stored = self.states[..., : self.num_stored, :].to(torch.float64)
@@ -245,8 +249,7 @@ class RollingGaussianDensity(RollingWindowNovelty):
         centered = stored - loc.unsqueeze(-2)
         covariance = centered.mT @ centered / max(stored.shape[-2] - 1, 1)
         std = covariance.diagonal(dim1=-2, dim2=-1).clamp_min(self.min_variance).sqrt()
-        correlation = covariance / (std.unsqueeze(-1) * std.unsqueeze(-2))
-        eigenvalues, eigenvectors = torch.linalg.eigh(correlation)
+        eigenvalues, eigenvectors = torch.linalg.eigh(self._correlation(covariance, std))
         eigenvalues = eigenvalues.clamp_min(self.min_correlation_eigenvalue)
         # Sigma = diag(std) V diag(lambda) V^T diag(std)  =>  W = diag(lambda^-1/2) V^T diag(1/std)
         whitening = (eigenvectors / eigenvalues.sqrt().unsqueeze(-2)).mT / std.unsqueeze(-2)
@@ -318,23 +321,13 @@ class GaussianKernelNovelty(RollingWindowNovelty):
         return -torch.exp(-0.5 * scaled_distance.square().sum(-1)).sum(-1)
 
 
-class DiagonalGaussianDensity(RollingWindowNovelty):
+class DiagonalGaussianDensity(RollingGaussianDensity):
     """Gaussian with a diagonal covariance fitted to the last ``window`` visited states.
 
-    ``score(s) = -log N(s | mu_F, diag(sigma_F^2))``: the paper's density without the
-    correlations between dimensions, so it needs no factorization (one mean and one
-    standard deviation per dimension, refitted lazily like
-    :class:`RollingGaussianDensity`) and never meets a singular matrix; variances
-    are floored at ``min_variance``.
-
-    Args:
-        num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
-        window (int): number of recent states fitted. Defaults to 50.
-
-    Keyword Args:
-        batch_shape (tuple of int): one window per batch element. Defaults to ``()``.
-        min_variance (float): floor on each variance. Defaults to ``1e-8``.
-        device (torch.device, optional): where the buffers live.
+    ``score(s) = -log N(s | mu_F, diag(sigma_F^2))``: :class:`RollingGaussianDensity`
+    with the correlations between dimensions dropped, so that a window whose
+    states move along a line is not read as a thin ellipse. Same arguments
+    (``min_correlation_eigenvalue`` has nothing to floor here).
 
     Examples:
         >>> import torch
@@ -346,42 +339,8 @@ class DiagonalGaussianDensity(RollingWindowNovelty):
         True
     """
 
-    def __init__(
-        self,
-        num_features: int | None = None,
-        window: int = 50,
-        *,
-        batch_shape: Sequence[int] = (),
-        min_variance: float = 1e-8,
-        device: torch.device | str | None = None,
-    ) -> None:
-        super().__init__(None, window, batch_shape=batch_shape, device=device)
-        if min_variance <= 0:
-            raise ValueError(f"min_variance must be > 0, got {min_variance}.")
-        self.min_variance = float(min_variance)
-        if num_features is not None:
-            self._allocate(int(num_features))
-
-    def _allocate(self, num_features: int) -> None:
-        super()._allocate(num_features)
-        shape = (*self.batch_shape, num_features)
-        self.register_buffer("loc", torch.zeros(shape, dtype=torch.float64, device=self.num_seen.device))
-        self.register_buffer("scale", torch.ones(shape, dtype=torch.float64, device=self.num_seen.device))
-
-    def score(self, states: torch.Tensor) -> torch.Tensor:
-        """``-log N(s | mu_F, diag(sigma_F^2))``: higher = rarer; zeros while the window is empty."""
-        if self.num_stored == 0:
-            return states.new_zeros(states.shape[:-1])
-        states = self._check_shape(states)
-        self._refit_if_stale()
-        z = (states.to(self.loc) - self.loc) / self.scale
-        log_density = -0.5 * z.square().sum(-1) - self.scale.log().sum(-1) - 0.5 * self.num_features * math.log(2 * math.pi)
-        return (-log_density).to(states.dtype)
-
-    def _refit(self) -> None:
-        stored = self.states[..., : self.num_stored, :].to(torch.float64)
-        self.loc.copy_(stored.mean(-2))
-        self.scale.copy_(stored.var(-2, correction=1 if stored.shape[-2] > 1 else 0).clamp_min(self.min_variance).sqrt())
+    def _correlation(self, covariance: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
+        return torch.eye(self.num_features, dtype=covariance.dtype, device=covariance.device).expand_as(covariance)
 
 
 class KNearestNovelty(RollingWindowNovelty):
