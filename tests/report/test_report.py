@@ -11,7 +11,7 @@ from matplotlib.image import imread
 
 from torchrl_mbe.envs.registry import TASKS
 from torchrl_mbe.report import load_runs, main
-from torchrl_mbe.report.figures import mean_curve
+from torchrl_mbe.report.figures import last_finished_episode, mean_curve
 from torchrl_mbe.report.runs import group_runs
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -228,6 +228,13 @@ class TestGrouping:
         main([str(tmp_path), "--out", str(tmp_path / "report")])
         row = table_row((tmp_path / "report" / "results.md").read_text(), "### Greedy evaluations", "dqn+gaussian")
         assert row[2:6] == ["1/2", "-112.5 [-105.0, -120.0]", "-104.0 [-104.0, -104.0]", "30000 [30000, –]"]
+
+
+    def test_coverage_colour_bar_ends_at_the_last_finished_episode(self, tmp_path):
+        run_dir = write_run(tmp_path / "r", "explore:gaussian", 0, np.full(4, -200.0), states=mountaincar_cells([(1, 1)] * 5))
+        episodes = np.load(run_dir / "visited_episodes.npy")
+        np.save(run_dir / "visited_episodes.npy", np.append(episodes[:-1], 5))  # the last state: an unfinished 5th episode
+        assert last_finished_episode(load_runs(tmp_path)) == 4
 
 
 class TestErrors:

@@ -14,7 +14,7 @@ from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import Run, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_coverage", "mean_curve", "save_figure"]
+__all__ = ["plot_learning_curves", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
 
 logger = logging.getLogger(__name__)
 
@@ -78,12 +78,17 @@ def mean_curve(curves: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.nda
     return np.nanmean(stacked, 0), np.nanmin(stacked, 0), np.nanmax(stacked, 0)
 
 
+def last_finished_episode(runs: list[Run]) -> int:
+    """The colour bar's top: the most episodes a run finished (states of an unfinished last episode share its colour)."""
+    return max(max(len(run.returns), 1) for run in runs)
+
+
 def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: EnvBounds, bins: int, path: Path) -> Path:
     """One scatter panel per method, of its best-covering run: ``best[method] = (run, coverage, num_seeds)``."""
     x_dim, y_dim = bounds.plane
     fig = Figure(figsize=(4.2 * len(best) + 1.0, 4.4), layout="constrained")
     axes = fig.subplots(1, len(best), squeeze=False, sharex=True, sharey=True)[0]
-    norm = Normalize(1, max(int(run.visited_episodes.max(initial=1)) for run, _, _ in best.values()))
+    norm = Normalize(1, last_finished_episode([run for run, _, _ in best.values()]))
     scatter = None
     for ax, (method, (run, coverage, num_seeds)) in zip(axes, best.items()):
         states = run.visited_states
