@@ -124,7 +124,8 @@ class TestReport:
         main([str(runs_dir)])
         out = runs_dir / "report"
         names = {
-            "learning_curves_MountainCar-v0.png", "coverage_MountainCar-v0.png", "coverage_LunarLander-v3.png", "results.md"
+            "learning_curves_MountainCar-v0.png", "greedy_evaluations_MountainCar-v0.png",
+            "coverage_MountainCar-v0.png", "coverage_LunarLander-v3.png", "results.md",
         }
         assert {p.name for p in out.iterdir()} == names
         assert sorted(capsys.readouterr().out.split()) == sorted(str(out / name) for name in names)

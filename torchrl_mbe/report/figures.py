@@ -14,7 +14,7 @@ from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import Run, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
+__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +57,36 @@ def plot_learning_curves(
     ax.set_xlabel("training episode")
     ax.set_ylabel(f"return, running average of last {window} episodes")
     ax.set_title(f"{env}: learning curves (line: mean over seeds, band: min to max)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    return save_figure(fig, path)
+
+
+def plot_greedy_evaluations(
+    env: str, groups: dict[str, list[Run]], colors: dict[str, str], path: Path
+) -> Path | None:
+    """Every run's greedy evaluations against frames, one colour per method; ``None`` if no run evaluated.
+
+    One line per seed (runs that stop when solved end early); the last point of a
+    line is its final 100-episode evaluation.
+    """
+    fig = Figure(figsize=(8, 5), layout="constrained")
+    ax = fig.add_subplot()
+    plotted = False
+    for method, runs in groups.items():
+        evaluated = [run for run in runs if len(run.eval_returns)]
+        for index, run in enumerate(evaluated):
+            label = f"{method} ({len({r.seed for r in evaluated})} seeds)" if index == 0 else None
+            ax.plot(run.eval_frames, run.eval_returns, color=colors[method], alpha=0.7, marker=".", label=label)
+            plotted = True
+    if not plotted:
+        return None
+    threshold = solved_threshold(groups)
+    if threshold is not None:
+        ax.axhline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved ({threshold:g})")
+    ax.set_xlabel("frames")
+    ax.set_ylabel("greedy return (mean over the evaluation's episodes)")
+    ax.set_title(f"{env}: greedy evaluations, one line per seed")
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     return save_figure(fig, path)

@@ -62,6 +62,8 @@ class Run:
     tag: str | None = None  # the experiment the run belongs to (summaries of 0.1.0 lack both)
     config_id: str | None = None
     summary: dict = field(default_factory=dict)  # summary.json as written (see torchrl_mbe.rundir.SUMMARY_FIELDS)
+    eval_frames: np.ndarray = field(default_factory=lambda: np.array([]))  # evaluations.csv: when each greedy evaluation ran
+    eval_returns: np.ndarray = field(default_factory=lambda: np.array([]))  # and its mean return
 
     @property
     def is_exploration(self) -> bool:
@@ -130,11 +132,11 @@ def _read_episodes(path: Path) -> dict[str, np.ndarray]:
     return table
 
 
-def _last_evaluation(path: Path) -> float | None:
+def _read_evaluations(path: Path) -> dict[str, np.ndarray]:
+    """The greedy evaluations' frames and mean returns (empty arrays without the file)."""
     if not path.is_file() or path.stat().st_size == 0:
-        return None
-    means = _read_csv(path, ["frames", "eval_return_mean"])["eval_return_mean"]
-    return float(means[-1]) if len(means) else None
+        return {"frames": np.array([]), "eval_return_mean": np.array([])}
+    return _read_csv(path, ["frames", "eval_return_mean"])
 
 
 def _load_array(path: Path) -> np.ndarray:
@@ -169,9 +171,10 @@ def _read_visited(run_dir: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
 def _read_run(run_dir: Path) -> Run:
     summary = _read_summary(run_dir / SUMMARY)
     episodes = _read_episodes(run_dir / table_file("episodes"))
+    evaluations = _read_evaluations(run_dir / table_file("evaluations"))
     final_eval = summary.get("final_eval_return")
-    if final_eval is None:
-        final_eval = _last_evaluation(run_dir / table_file("evaluations"))
+    if final_eval is None and len(evaluations["eval_return_mean"]):
+        final_eval = evaluations["eval_return_mean"][-1]
     states, visited_episodes = _read_visited(run_dir)
     return Run(
         path=run_dir,
@@ -187,6 +190,8 @@ def _read_run(run_dir: Path) -> Run:
         tag=summary.get("tag"),
         config_id=summary.get("config_id"),
         summary=summary,
+        eval_frames=evaluations["frames"],
+        eval_returns=evaluations["eval_return_mean"],
     )
 
 

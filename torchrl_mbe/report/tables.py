@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from torchrl_mbe.envs.registry import EnvBounds
-from torchrl_mbe.report.figures import plot_coverage, plot_learning_curves
+from torchrl_mbe.report.figures import plot_coverage, plot_greedy_evaluations, plot_learning_curves
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
 from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, method_key, plane_coverage, solved_threshold
 
@@ -180,6 +180,10 @@ def _env_section(
     learning = group_runs([r for r in runs if not r.is_exploration])
     if learning:
         lines += _greedy_section(learning)
+        figure = plot_greedy_evaluations(env, learning, colors, out_dir / f"greedy_evaluations_{file_stem(env)}.png")
+        if figure is not None:
+            written.append(figure)
+            lines += [f"![greedy evaluations]({figure.name})", ""]
         lines += _learning_section(learning, window)
         figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{file_stem(env)}.png")
         if figure is not None:
