@@ -128,6 +128,7 @@ def test_train_py_runs_and_prints_a_summary(tmp_path, run_app):
     assert result.returncode == 0, result.stderr
     assert '"method": "dqn+gaussian"' in result.stderr + result.stdout
     assert (tmp_path / "run" / "summary.json").exists()
+    assert "Final greedy evaluation: 1 episodes side by side" in result.stdout + result.stderr
     last_line = (result.stdout + result.stderr).strip().splitlines()[-1]
     assert "SOLVED: final greedy return" in last_line and f"Run directory: {tmp_path}/run" in last_line
     assert "\x1b[" not in result.stdout + result.stderr  # no ANSI colour codes when piped
@@ -222,6 +223,7 @@ def test_a_default_run_makes_no_network_connection(tmp_path, run_app, logger):
     result = run_app(f"logger={logger}", f"hydra.run.dir={tmp_path}/run", "train.max_frames=200", cwd=tmp_path, env=env)
     assert result.returncode == 0, result.stderr
     assert not netlog.exists() or netlog.read_text() == ""
+    assert "Run history" not in result.stdout + result.stderr  # wandb's summary block stays off
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error on a machine without CUDA")
@@ -247,3 +249,14 @@ def test_a_run_creates_no_multiprocessing_semaphores_that_a_kill_would_leak(tmp_
     monkeypatch.setattr(multiprocessing.synchronize.SemLock, "__init__", lambda self, *a, **k: (created.append(type(self)), original(self, *a, **k))[1])
     summary = train(compose_config(f"buffer={buffer}", "progress_bar=true"), tmp_path)
     assert summary["q_updates"] > 0 and created == []
+
+
+def test_ctrl_c_during_the_final_evaluation_exits_with_the_checkpoint_and_the_resume_command(tmp_path, compose_config, monkeypatch):
+    def interrupted_evaluation(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_module, "evaluate", interrupted_evaluation)
+    with pytest.raises(SystemExit, match=r"Interrupted at 304 frames; checkpoint saved in .*resume=true"):
+        train(compose_config(), tmp_path)
+    assert torch.load(tmp_path / CHECKPOINT, weights_only=False)["progress"]["frames"] == 304
+    assert not (tmp_path / "summary.json").exists()
