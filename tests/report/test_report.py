@@ -215,6 +215,15 @@ class TestGrouping:
             "dqn+gaussian [sweep bbbb]": [0],
         }
 
+    def test_one_method_with_a_config_per_env_reports_every_env(self, tmp_path):
+        for env, config_id in (("MountainCar-v0", "aaaa"), ("CartPole-v1", "bbbb")):
+            write_run(tmp_path / env, "dqn+gaussian", 0, np.full(5, -200.0), env=env, evaluations=[-200.0],
+                      experiment={"tag": "default", "config_id": config_id})
+        main([str(tmp_path), "--out", str(tmp_path / "report")])
+        results = (tmp_path / "report" / "results.md").read_text()
+        for env in ("MountainCar-v0", "CartPole-v1"):
+            assert table_row(env_section(results, env), "### Greedy evaluations", "dqn+gaussian")[1] == "0"
+
     def test_curves_of_unequal_length_are_averaged_over_the_runs_still_going(self):
         mean, low, high = mean_curve([np.array([1.0, 2.0, 3.0]), np.array([5.0])])
         assert mean.tolist() == [3.0, 2.0, 3.0] and low.tolist() == [1.0, 2.0, 3.0] and high.tolist() == [5.0, 2.0, 3.0]

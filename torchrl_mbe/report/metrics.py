@@ -24,7 +24,6 @@ Coverage, two measures:
 from __future__ import annotations
 
 import itertools
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 

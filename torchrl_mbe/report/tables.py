@@ -10,7 +10,7 @@ import numpy as np
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.figures import plot_coverage, plot_greedy_evaluations, plot_learning_curves
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
-from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, method_key, plane_coverage, solved_threshold
+from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, plane_coverage, solved_threshold
 
 __all__ = ["write_report"]
 
@@ -173,12 +173,13 @@ _DEFINITIONS = """\
 
 
 def _env_section(
-    env: str, runs: Sequence[Run], out_dir: Path, colors: dict[str, str], window: int, bins: int
+    env: str, runs: Sequence[Run], out_dir: Path, window: int, bins: int
 ) -> tuple[list[str], list[Path]]:
     """The markdown lines and figures of one environment."""
     lines, written = [f"## {env}", ""], []
     learning = group_runs([r for r in runs if not r.is_exploration])
     if learning:
+        colors = {label: f"C{i % 10}" for i, label in enumerate(learning)}  # one per group of this env
         lines += _greedy_section(learning)
         figure = plot_greedy_evaluations(env, learning, colors, out_dir / f"greedy_evaluations_{file_stem(env)}.png")
         if figure is not None:
@@ -221,13 +222,11 @@ def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100,
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    learning_groups = group_runs([r for r in runs if not r.is_exploration])
-    colors = {label: f"C{i % 10}" for i, label in enumerate(learning_groups)}
     envs = sorted({r.env for r in runs})
     lines = ["# Results", "", f"{len(runs)} runs in {len(envs)} environment(s).", ""]
     written: list[Path] = []
     for env in envs:
-        env_lines, env_figures = _env_section(env, [r for r in runs if r.env == env], out_dir, colors, window, bins)
+        env_lines, env_figures = _env_section(env, [r for r in runs if r.env == env], out_dir, window, bins)
         lines += env_lines
         written += env_figures
     lines.append(_DEFINITIONS.format(w=window))
