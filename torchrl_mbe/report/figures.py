@@ -51,15 +51,8 @@ def plot_learning_curves(
         plotted = True
     if not plotted:
         return None
-    threshold = solved_threshold(groups)
-    if threshold is not None:
-        ax.axhline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved ({threshold:g})")
-    ax.set_xlabel("training episode")
-    ax.set_ylabel(f"return, running average of last {window} episodes")
-    ax.set_title(f"{env}: learning curves (line: mean over seeds, band: min to max)")
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
-    return save_figure(fig, path)
+    labels = ("training episode", f"return, running average of last {window} episodes")
+    return _finish_returns_plot(fig, groups, labels, f"{env}: learning curves (line: mean over seeds, band: min to max)", path)
 
 
 def plot_greedy_evaluations(
@@ -81,12 +74,19 @@ def plot_greedy_evaluations(
             plotted = True
     if not plotted:
         return None
+    labels = ("frames", "greedy return (mean over the evaluation's episodes)")
+    return _finish_returns_plot(fig, groups, labels, f"{env}: greedy evaluations, one line per seed", path)
+
+
+def _finish_returns_plot(fig: Figure, groups: dict[str, list[Run]], axis_labels: tuple[str, str], title: str, path: Path) -> Path:
+    """The solved threshold as a dashed line, axis labels, title, grid and legend; saves the figure."""
+    ax = fig.axes[0]
     threshold = solved_threshold(groups)
     if threshold is not None:
         ax.axhline(threshold, color="0.3", linestyle="--", linewidth=1, label=f"solved ({threshold:g})")
-    ax.set_xlabel("frames")
-    ax.set_ylabel("greedy return (mean over the evaluation's episodes)")
-    ax.set_title(f"{env}: greedy evaluations, one line per seed")
+    ax.set_xlabel(axis_labels[0])
+    ax.set_ylabel(axis_labels[1])
+    ax.set_title(title)
     ax.grid(alpha=0.3)
     ax.legend(loc="best")
     return save_figure(fig, path)
