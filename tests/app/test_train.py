@@ -32,6 +32,11 @@ def test_other_supported_envs_train_with_gaussian_exploration(tmp_path, env, com
     assert summary["final_eval_return"] is not None
 
 
+def test_n_step_windows_longer_than_a_batch_fill_across_batches(tmp_path, compose_config):
+    summary = train(compose_config("env.num_envs=16", "collector.frames_per_batch=16", "algo.n_steps=3"), tmp_path)
+    assert summary["frames"] >= 300 and summary["q_updates"] > 0
+
+
 def test_batched_envs_and_prioritized_replay(tmp_path, compose_config):
     summary = train(compose_config("env.num_envs=4", "buffer=prioritized", "collector.frames_per_batch=32"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] > 0

@@ -68,7 +68,9 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     with StopOnInterrupt() as interrupt:
         while not (run.budget_spent() or interrupt.requested):
             batch = next(batches)
-            replay_buffer.extend(transitions(batch))
+            stored = transitions(batch)
+            if stored is not None:  # None while the first n-step windows fill
+                replay_buffer.extend(stored)
             record_frames(run, batch)
             check_dynamics_on_new_data(agent, batch, run)
             learn_from_new_frames(agent, replay_buffer, batch.numel(), cfg.algo, cfg.dynamics, run)
