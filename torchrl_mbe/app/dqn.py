@@ -275,8 +275,7 @@ class ReplayTransitions:
 
     def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
         """Transitions of ``frames`` (``(time,)`` or ``(envs, time)``) as a flat batch; ``None`` while held back."""
-        frames = frames.select(*self.KEYS)
-        frames.set(SUCCESSOR_KEY, frames.get(("next", "observation")))
+        frames = one_step_transitions(frames)
         if self.multistep is not None:
             frames = self.multistep.inv(frames)
             if frames is None:
@@ -285,12 +284,18 @@ class ReplayTransitions:
         return frames.reshape(-1)
 
 
+def one_step_transitions(frames: TensorDictBase) -> TensorDictBase:
+    """The keys the losses read from collected ``frames``, with the one-step successor the dynamics model learns."""
+    transitions = frames.select(*ReplayTransitions.KEYS)
+    return transitions.set(SUCCESSOR_KEY, transitions.get(("next", "observation")))
+
+
 def check_dynamics_on_new_data(agent: DQNAgent, batch: TensorDictBase, run: Run) -> None:
     """Dynamics error on freshly collected transitions (not yet trained on); feeds the warm-up switch."""
     if agent.dynamics_loss is None:
         return
     progress = run.progress
-    frames = batch.reshape(-1).select("observation", "action").set(SUCCESSOR_KEY, batch.get(("next", "observation")).reshape(batch.numel(), -1))
+    frames = one_step_transitions(batch).reshape(-1)
     with torch.no_grad():
         error = float(agent.dynamics_loss(frames)["loss_dynamics"])
     previous = progress.dynamics_val_error
