@@ -93,7 +93,6 @@ class Progress:
     best_eval_frames: int | None = None
     solved_at_frames: int | None = None
     solved_at_wall_time_s: float | None = None
-    finished: bool = False
     visited: list = field(default_factory=list)  # (observations, episode ids) per batch, if recorded
 
 
@@ -141,13 +140,21 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
     bar = _progress_bar(cfg, progress)
     run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar, replay_buffer)
     run.started -= progress.wall_time_s
-    if cfg.resume and progress.finished:
-        if run.budget_spent():
-            logger.close()
-            raise RunFinished(json.loads((run_dir / SUMMARY).read_text()))
-        progress.finished = False
+    summary = _summary_of_this_checkpoint(run_dir, progress) if cfg.resume else None
+    if summary is not None and run.budget_spent():
+        logger.close()
+        raise RunFinished(summary)
     log.info("Run directory: %s", run_dir)
     return run
+
+
+def _summary_of_this_checkpoint(run_dir: Path, progress: Progress) -> dict | None:
+    """The run's summary if it was written at the checkpoint's frame count (the run finished there), else ``None``."""
+    path = run_dir / SUMMARY
+    if not path.exists():
+        return None
+    summary = json.loads(path.read_text())
+    return summary if summary.get("frames") == progress.frames else None
 
 
 def _progress_bar(cfg: DictConfig, progress: Progress) -> tqdm:
@@ -410,8 +417,6 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
         )
     if final is not None:
         _log_evaluation(final, run)
-    run.progress.finished = True
-    save_checkpoint(run)
     run.logger.close()
     return write_summary(run, final)
 
