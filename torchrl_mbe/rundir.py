@@ -96,4 +96,5 @@ SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
 setting that shapes the result except the seed) say which experiment a run belongs
 to, so the report groups only runs of the same config; ``solved`` compares the
 final evaluation with the threshold; ``solved_at_*`` is the first periodic
-evaluation at or above it."""
+evaluation at or above it that an evaluation of ``eval.final_episodes`` episodes
+confirmed."""

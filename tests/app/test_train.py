@@ -202,6 +202,20 @@ def test_stop_when_solved_ends_at_the_first_solved_evaluation(tmp_path, compose_
     assert summary["frames"] == 160 and summary["solved_at_frames"] == 160 and summary["solved"] is True
 
 
+def test_a_solved_evaluation_that_the_longer_one_does_not_confirm_lets_training_go_on(tmp_path, compose_config, monkeypatch):
+    confirmations = iter([-150.0, -105.0])  # the first confirmation fails, the second passes
+
+    def fake_evaluate(actor, env, env_id):
+        periodic = env.batch_size.numel() == 1
+        return {"eval_return_mean": -100.0 if periodic else next(confirmations), "eval_return_std": 0.0, "eval_success_rate": 1.0}
+
+    monkeypatch.setattr(run_module, "evaluate", fake_evaluate)
+    overrides = ("train.stop_when_solved=true", "train.max_frames=2000", "eval.episodes=1", "eval.every_frames=160", "eval.final_episodes=3")
+    summary = train(compose_config(*overrides), tmp_path)
+    assert summary["frames"] == summary["solved_at_frames"] == 320
+    assert summary["final_eval_return"] == -105.0 and summary["solved"] is True  # the confirming evaluation, not a third one
+
+
 def test_checkpoints_of_version_0_1_are_refused_with_one_line(tmp_path, compose_config):
     train(compose_config("train.max_frames=120", "eval.final_episodes=0"), tmp_path)
     checkpoint = torch.load(tmp_path / CHECKPOINT, weights_only=False)

@@ -216,7 +216,7 @@ class TrainConfig:
     max_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # optional cap on frames
     checkpoint_every_frames: int = setting(20_000, POSITIVE_INT)
     save_visited_states: bool = False  # write visited_states.npy (the coverage experiment)
-    stop_when_solved: bool = False  # end at the first periodic evaluation at or above the solved threshold
+    stop_when_solved: bool = False  # end at the first periodic evaluation at or above the solved threshold that eval.final_episodes confirm
 
 
 @dataclass

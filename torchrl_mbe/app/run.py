@@ -111,6 +111,7 @@ class Run:
     bar: tqdm
     replay_buffer: Any = None  # saved with the checkpoint when the algorithm has one
     started: float = field(default_factory=time.perf_counter)
+    confirmation: tuple[int, dict] | None = None  # (frames, result) of the evaluation that confirmed "solved"
 
     @property
     def solved_threshold(self) -> float | None:
@@ -295,8 +296,33 @@ def _periodic_evaluation(run: Run) -> None:
         torch.save({"actor": run.agent.actor.state_dict(), "frames": progress.frames, "eval_return_mean": mean}, run.run_dir / BEST_POLICY)
     threshold = run.solved_threshold
     if threshold is not None and mean >= threshold and progress.solved_at_frames is None:
-        progress.solved_at_frames, progress.solved_at_wall_time_s = progress.frames, round(progress.wall_time_s, 2)
-        log.info("Solved at %d frames (%.1f s): greedy return %.1f >= %.1f", progress.frames, progress.wall_time_s, mean, threshold)
+        _confirm_solved(run, threshold)
+
+
+def _confirm_solved(run: Run, threshold: float) -> None:
+    """Marks the task solved if an evaluation of ``eval.final_episodes`` episodes confirms the periodic one.
+
+    A few periodic episodes at or above the threshold often come from a policy
+    that averages below it; training goes on when the confirmation fails. With
+    ``eval.final_episodes=0`` the periodic evaluation decides alone.
+    """
+    progress = run.progress
+    if run.cfg.eval.final_episodes:
+        result = _final_evaluation(run)
+        mean = result["eval_return_mean"]
+        log.info("Confirming evaluation at %d frames (%d episodes): return %.1f", progress.frames, run.cfg.eval.final_episodes, mean)
+        if mean < threshold:
+            return
+        run.confirmation = (progress.frames, result)
+    progress.solved_at_frames, progress.solved_at_wall_time_s = progress.frames, round(progress.wall_time_s, 2)
+    log.info("Solved at %d frames (%.1f s), greedy return >= %g", progress.frames, progress.wall_time_s, threshold)
+
+
+def _final_evaluation(run: Run) -> dict:
+    """Greedy returns of ``eval.final_episodes`` episodes played side by side (their own seeds)."""
+    cfg = run.cfg
+    final_env = make_env(cfg.env.name, num_envs=cfg.eval.final_episodes, seed=cfg.seed + 20_000, device=cfg.device)
+    return evaluate(run.agent.actor, final_env, run.env_id)
 
 
 def evaluate(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> dict:
@@ -403,10 +429,11 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
     episodes = run.cfg.eval.final_episodes
     final = None
     try:
-        if not interrupt.requested and episodes:
+        if run.confirmation is not None and run.confirmation[0] == run.progress.frames:
+            final = run.confirmation[1]  # the same policy, evaluated just now
+        elif not interrupt.requested and episodes:
             log.info("Final greedy evaluation: %d episodes side by side (Ctrl-C stops it; the checkpoint is saved).", episodes)
-            final_env = make_env(run.cfg.env.name, num_envs=episodes, seed=run.cfg.seed + 20_000, device=run.cfg.device)
-            final = evaluate(run.agent.actor, final_env, run.env_id)
+            final = _final_evaluation(run)
     except KeyboardInterrupt:
         interrupt.requested = True
     if interrupt.requested:
