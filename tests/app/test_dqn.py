@@ -49,3 +49,60 @@ def test_learning_rate_decays_linearly_after_learning_starts_and_then_stays(comp
     algo = compose_config("algo.lr=0.01", "algo.lr_decay_frames=1000", "algo.lr_end_factor=0.1", "algo.learning_starts=100").algo
     assert [round(q_learning_rate(algo, frames), 6) for frames in (0, 100, 600, 1100, 5000)] == [0.01, 0.01, 0.0055, 0.001, 0.001]
     assert q_learning_rate(compose_config().algo, 10_000) == compose_config().algo.lr  # no decay by default
+
+
+def build_agent(compose_config, *overrides):
+    from torchrl_mbe.app.dqn import build_dqn_agent
+    from torchrl_mbe.envs import make_env
+
+    cfg = compose_config(*overrides)
+    env = make_env("mountaincar", num_envs=4, seed=0)
+    return cfg, env, build_dqn_agent(cfg, env)
+
+
+def test_rnd_adds_its_intrinsic_reward_to_what_the_q_network_learns_and_its_predictor_learns(compose_config):
+    from torchrl.collectors import Collector
+    from torchrl.objectives import RNDLoss
+
+    from torchrl_mbe.app.dqn import update_rnd
+
+    _, env, agent = build_agent(compose_config, "exploration=rnd", "exploration.intrinsic_coef=0.5")
+    batch = next(iter(Collector(env, agent.policy, frames_per_batch=64, total_frames=-1)))
+    intrinsic = batch["next", "intrinsic_reward"]
+    assert intrinsic.shape == batch["next", "reward"].shape and (intrinsic > 0).all()
+    stored = ReplayTransitions(n_steps=1, gamma=0.99, intrinsic_coef=agent.intrinsic_coef)(batch)
+    assert torch.allclose(stored["next", "reward"], (batch["next", "reward"] + 0.5 * intrinsic).reshape(-1, 1))
+    observations = stored.select(("next", "observation"))
+    whole_batch_loss = RNDLoss(agent.rnd_loss.predictor_network, agent.rnd_loss.target_network, obs_rms=agent.rnd.obs_rms, update_fraction=1.0)
+    error = lambda: whole_batch_loss(observations)["loss_predictor"].item()  # noqa: E731
+    before = error()
+    for _ in range(100):
+        update_rnd(agent, observations)
+    assert agent.rnd_loss.obs_rms is agent.rnd.obs_rms  # the loss normalizes as the transform does
+    assert error() < 0.5 * before  # visited states become familiar: their intrinsic reward falls
+
+
+def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compose_config):
+    from tensordict import TensorDict
+    from torchrl.envs import ExplorationType, set_exploration_type
+
+    from torchrl_mbe.app.dqn import make_replay_buffer, update_q
+
+    cfg, env, agent = build_agent(compose_config, "exploration=noisy")
+    assert agent.policy is agent.actor and agent.explorer is None  # no eps: the noise explores
+    states = TensorDict({"observation": torch.randn(256, 2) * 0.3}, [256])
+    act = lambda: agent.actor(states.clone())["action"].argmax(-1)  # noqa: E731
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        greedy = act()
+        assert torch.equal(greedy, act())
+    buffer = make_replay_buffer(cfg.buffer, "cpu")
+    rollout = env.rollout(64, break_when_any_done=False)
+    buffer.extend(ReplayTransitions(1, 0.99)(rollout))
+    noise_scale = lambda: next(p for name, p in agent.actor.named_parameters() if name.endswith("weight_sigma"))  # noqa: E731
+    sigma = noise_scale().detach().clone()
+    with set_exploration_type(ExplorationType.RANDOM):
+        noisy = act()
+        update_q(agent, buffer, 32)  # resamples the noise
+        resampled = act()
+    assert not torch.equal(noisy, greedy) and not torch.equal(noisy, resampled)
+    assert not torch.equal(sigma, noise_scale())  # the noise scale learns: the loss samples the noise

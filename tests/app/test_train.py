@@ -13,12 +13,12 @@ from torchrl_mbe.app import ConfigError, train
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT
 
 
-@pytest.mark.parametrize("exploration", ["gaussian", "kernel", "diagonal", "knn", "egreedy", "none"])
+@pytest.mark.parametrize("exploration", ["gaussian", "kernel", "diagonal", "knn", "kde", "rnd", "noisy", "egreedy", "none"])
 def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration, compose_config, read_table):
     summary = train(compose_config(f"exploration={exploration}"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] >= 50  # 0.25 updates per frame after 100
     assert summary["method"] == f"dqn+{exploration}"
-    assert (summary["dynamics_updates"] > 0) == (exploration not in ("egreedy", "none"))
+    assert (summary["dynamics_updates"] > 0) == (exploration not in ("rnd", "noisy", "egreedy", "none"))
     episodes = read_table(tmp_path, "episodes")
     assert [int(row["episode"]) for row in episodes] == list(range(1, summary["episodes"] + 1))
     assert json.loads((tmp_path / "summary.json").read_text()) == summary

@@ -4,7 +4,13 @@ import pytest
 import torch
 from torch.distributions import MultivariateNormal
 
-from torchrl_mbe import DiagonalGaussianDensity, GaussianKernelNovelty, KNearestNovelty, RollingGaussianDensity
+from torchrl_mbe import (
+    DiagonalGaussianDensity,
+    GaussianKernelNovelty,
+    KernelDensityNovelty,
+    KNearestNovelty,
+    RollingGaussianDensity,
+)
 
 
 def correlated_states(num: int) -> torch.Tensor:
@@ -148,7 +154,7 @@ def test_a_loaded_state_dict_scores_the_same(scored_before_saving):
 
 
 
-ALL_SCORERS = [RollingGaussianDensity, GaussianKernelNovelty, DiagonalGaussianDensity, KNearestNovelty]
+ALL_SCORERS = [RollingGaussianDensity, GaussianKernelNovelty, DiagonalGaussianDensity, KNearestNovelty, KernelDensityNovelty]
 
 
 @pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
@@ -200,3 +206,26 @@ def test_k_nearest_score_is_the_mean_scaled_distance_to_the_k_closest_stored_sta
     state = torch.tensor([[1.0, 0.0]])
     distances = ((state - stored) / scale).norm(dim=-1).sort().values
     assert torch.allclose(novelty.score(state), distances[:2].mean().unsqueeze(0))
+
+
+def test_kernel_density_is_minus_the_log_of_a_scotts_rule_gaussian_mixture_over_the_window():
+    window = torch.randn(300, 2, 3) * torch.tensor([1.0, 10.0, 0.1])
+    novelty = KernelDensityNovelty(window=300, batch_shape=(2,))
+    novelty.update(window)
+    bandwidth = window.std(0, correction=0) * 300 ** (-1 / 7)  # (2, 3): per env and dimension
+    mixture = torch.distributions.MixtureSameFamily(
+        torch.distributions.Categorical(torch.ones(2, 300)),
+        torch.distributions.Independent(torch.distributions.Normal(window.movedim(0, 1), bandwidth.unsqueeze(1)), 1),
+    )
+    states = torch.randn(5, 2, 3)
+    assert torch.allclose(novelty.score(states), -mixture.log_prob(states), atol=1e-4)
+
+
+def test_kernel_density_sees_two_clusters_where_the_gaussian_sees_one_blob():
+    clusters = torch.cat([torch.randn(200, 2) * 0.3 - 3, torch.randn(200, 2) * 0.3 + 3])
+    kde, gaussian = KernelDensityNovelty(window=400), RollingGaussianDensity(window=400)
+    for scorer in (kde, gaussian):
+        scorer.update(clusters)
+    between, inside = torch.tensor([[0.0, 0.0]]), torch.tensor([[3.0, 3.0]])
+    assert kde.score(between) > kde.score(inside)  # the empty gap is rare
+    assert gaussian.score(between) < gaussian.score(inside)  # the blob's centre looks most familiar

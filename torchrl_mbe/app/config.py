@@ -167,15 +167,45 @@ class KNearestExploration(PlanningExploration):
     k: int = setting(5, POSITIVE_INT)
 
 
+@dataclass
+class KernelDensityExploration(PlanningExploration):
+    name: str = "kde"  # kernel density estimate, Scott's-rule bandwidth per dimension
+    window: int = setting(500, Rule(lambda v: _is_int(v) and v >= 2, "an integer >= 2"))
+
+
+@dataclass
+class RNDExploration(ExplorationConfig):
+    """Random network distillation (TorchRL's RNDTransform and RNDLoss): an intrinsic reward, e-greedy acting."""
+
+    name: str = "rnd"
+    intrinsic_coef: float = setting(0.5, NON_NEGATIVE)  # the reward learned from: extrinsic + coef * intrinsic
+    num_cells: list[int] = setting([64, 64], LAYERS)  # target and predictor networks
+    embedding_size: int = setting(64, POSITIVE_INT)
+    lr: float = setting(1e-3, POSITIVE)  # predictor's Adam; one step per Q update, on the Q update's batch
+
+
+@dataclass
+class NoisyExploration(ExplorationConfig):
+    """NoisyNet (TorchRL's NoisyLinear layers in the Q-network): learned parameter noise, no eps."""
+
+    name: str = "noisy"
+    std_init: float = setting(0.5, POSITIVE)  # initial noise scale of every layer
+
+
 EXPLORERS: dict[str, type[ExplorationConfig]] = {
     "gaussian": GaussianExploration,
     "kernel": KernelExploration,
     "diagonal": DiagonalExploration,
     "knn": KNearestExploration,
+    "kde": KernelDensityExploration,
+    "rnd": RNDExploration,
+    "noisy": NoisyExploration,
     "egreedy": dataclasses.make_dataclass("EGreedyExploration", [("name", str, "egreedy")], bases=(ExplorationConfig,)),
     "none": dataclasses.make_dataclass("NoExploration", [("name", str, "none")], bases=(ExplorationConfig,)),
 }
-"""Every ``exploration=`` option; ``egreedy`` takes random exploring actions, ``none`` never explores."""
+"""Every ``exploration=`` option: the planning ones (gaussian, kernel, diagonal, knn, kde),
+``rnd`` and ``noisy`` (TorchRL's explorers), ``egreedy`` (random exploring actions) and
+``none`` (never explores)."""
 
 
 @dataclass

@@ -19,9 +19,10 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer, TensorSpec
-from torchrl.envs import EnvBase, MultiStepTransform
-from torchrl.modules import QValueActor
-from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
+from torchrl.envs import EnvBase, ExplorationType, MultiStepTransform, TransformedEnv
+from torchrl.envs.transforms import RNDTransform
+from torchrl.modules import MLP, QValueActor, reset_noise
+from torchrl.objectives import DQNLoss, HardUpdate, RNDLoss, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.config import is_planning
 from torchrl_mbe.app.run import (
@@ -41,6 +42,7 @@ from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.novelty import (
     DiagonalGaussianDensity,
     GaussianKernelNovelty,
+    KernelDensityNovelty,
     KNearestNovelty,
     RollingGaussianDensity,
     RollingWindowNovelty,
@@ -62,7 +64,7 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
     run = open_run(cfg, run_dir, env, agent, replay_buffer)
-    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma)
+    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.intrinsic_coef)
     collector = Collector(env, agent.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
     batches = iter(collector)
     with StopOnInterrupt() as interrupt:
@@ -92,6 +94,11 @@ class DQNAgent:
     q_step: GradientStep  # DQNLoss, clipping, Adam
     dynamics_loss: DynamicsLoss | None
     dynamics_step: GradientStep | None  # DynamicsLoss, clipping, Adam (None for the oracle)
+    noisy: bool = False  # NoisyNet: the Q-network's noise is resampled after every Q step
+    rnd: RNDTransform | None = None  # on the training env: writes ("next", "intrinsic_reward")
+    rnd_loss: RNDLoss | None = None
+    rnd_step: GradientStep | None = None  # RNDLoss on the Q step's batch, Adam
+    intrinsic_coef: float | None = None  # the Q-network learns from reward + intrinsic_coef * intrinsic_reward
 
     @property
     def eps(self) -> float:
@@ -112,6 +119,8 @@ class DQNAgent:
         }
         if self.dynamics_step is not None:
             state["dynamics_optimizer"] = self.dynamics_step.optimizer.state_dict()
+        if self.rnd is not None:
+            state["rnd"], state["rnd_optimizer"] = self.rnd.state_dict(), self.rnd_step.optimizer.state_dict()
         return state
 
     def load_state_dict(self, state: dict) -> None:
@@ -122,18 +131,29 @@ class DQNAgent:
         self.q_step.optimizer.load_state_dict(state["q_optimizer"])
         if self.dynamics_step is not None:
             self.dynamics_step.optimizer.load_state_dict(state["dynamics_optimizer"])
+        if self.rnd is not None:
+            self.rnd.load_state_dict(state["rnd"])
+            self.rnd_step.optimizer.load_state_dict(state["rnd_optimizer"])
 
 
-def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
-    """The actor, the exploration policy, DQNLoss with its target updater, the dynamics loss and the optimizers."""
-    algo, device = cfg.algo, torch.device(cfg.device)
+def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
+    """The actor, the exploration policy, DQNLoss with its target updater, the dynamics loss and the optimizers.
+
+    With ``exploration=rnd`` the RND transform is appended to ``env`` (the training env).
+    """
+    algo, exploration, device = cfg.algo, cfg.exploration, torch.device(cfg.device)
     action_spec = env.action_spec_unbatched.to(device)
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
-    actor, q_input_norm = make_q_actor(observation_size, action_spec, algo.num_cells, device, standardize_inputs=algo.standardize_inputs)
+    noise_std = exploration.std_init if exploration.name == "noisy" else None
+    actor, q_input_norm = make_q_actor(
+        observation_size, action_spec, algo.num_cells, device, standardize_inputs=algo.standardize_inputs, noise_std=noise_std
+    )
     dynamics = make_dynamics(cfg, observation_size, action_spec, device) if is_planning(cfg) else None
     policy, explorer = make_exploration_policy(cfg, actor, dynamics, action_spec, observation_size, env.batch_size)
     q_loss = DQNLoss(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
+    if noise_std is not None:  # a NoisyNet learns through its noise: the loss samples it, as the collector does
+        q_loss.deterministic_sampling_mode = ExplorationType.RANDOM
     dynamics_loss = None
     if dynamics is not None:
         dynamics_loss = DynamicsLoss(dynamics)
@@ -143,6 +163,7 @@ def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
         dynamics_optimizer = torch.optim.Adam(dynamics.parameters(), lr=cfg.dynamics.lr)
         dynamics_step = GradientStep(lambda batch: dynamics_loss(batch)["loss_dynamics"], dynamics_optimizer, cfg.dynamics.max_grad_norm, compile=cfg.compile)
     q_optimizer = torch.optim.Adam(q_loss.parameters(), lr=algo.lr)
+    rnd, rnd_loss, rnd_step = make_rnd(exploration, env, observation_size, device, compile=cfg.compile) if exploration.name == "rnd" else (None,) * 3
     return DQNAgent(
         actor=actor,
         q_input_norm=q_input_norm,
@@ -153,18 +174,49 @@ def build_dqn_agent(cfg: DictConfig, env: EnvBase) -> DQNAgent:
         q_step=GradientStep(lambda batch: q_loss(batch)["loss"], q_optimizer, algo.max_grad_norm, compile=cfg.compile),
         dynamics_loss=dynamics_loss,
         dynamics_step=dynamics_step,
+        noisy=noise_std is not None,
+        rnd=rnd,
+        rnd_loss=rnd_loss,
+        rnd_step=rnd_step,
+        intrinsic_coef=exploration.intrinsic_coef if rnd is not None else None,
     )
 
 
+def make_rnd(
+    exploration: DictConfig, env: TransformedEnv, observation_size: int, device: torch.device, *, compile: bool
+) -> tuple[RNDTransform, RNDLoss, GradientStep]:
+    """TorchRL's random network distillation: ``RNDTransform`` appended to ``env``, ``RNDLoss`` and its gradient step.
+
+    The loss reads the transform's running observation statistics once they
+    exist (after the first collected step; see :func:`update_rnd`).
+    """
+    target, predictor = (
+        MLP(in_features=observation_size, out_features=exploration.embedding_size, num_cells=list(exploration.num_cells), device=device)
+        for _ in range(2)
+    )
+    rnd = RNDTransform(target, predictor)
+    env.append_transform(rnd)
+    loss = RNDLoss(predictor, target)
+    optimizer = torch.optim.Adam(predictor.parameters(), lr=exploration.lr)
+    return rnd, loss, GradientStep(lambda batch: loss(batch)["loss_predictor"], optimizer, None, compile=compile)
+
+
 def make_q_actor(
-    observation_size: int, action_spec: TensorSpec, num_cells, device: torch.device, *, standardize_inputs: bool
+    observation_size: int,
+    action_spec: TensorSpec,
+    num_cells,
+    device: torch.device,
+    *,
+    standardize_inputs: bool,
+    noise_std: float | None = None,
 ) -> tuple[QValueActor, Standardize | None]:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
 
     With ``standardize_inputs`` the MLP reads standardized observations; the
     returned :class:`~torchrl_mbe.modules.Standardize` is identity until the loop fits it.
+    With ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`).
     """
-    network = make_per_action_mlp(observation_size, action_spec, num_cells, device=device)
+    network = make_per_action_mlp(observation_size, action_spec, num_cells, device=device, noise_std=noise_std)
     if not standardize_inputs:
         return QValueActor(network, spec=action_spec, in_keys=["observation"]), None
     standardize = Standardize(observation_size, device=device)
@@ -187,6 +239,8 @@ def make_novelty(exploration: DictConfig, observation_size: int, batch_shape: to
         return DiagonalGaussianDensity(observation_size, exploration.window, **kwargs)
     if exploration.name == "knn":
         return KNearestNovelty(observation_size, exploration.window, k=exploration.k, **kwargs)
+    if exploration.name == "kde":
+        return KernelDensityNovelty(observation_size, exploration.window, **kwargs)
     return GaussianKernelNovelty(observation_size, exploration.window, bandwidth=exploration.bandwidth, **kwargs)
 
 
@@ -206,9 +260,9 @@ def make_exploration_policy(
         "annealing_num_steps": algo.eps_annealing_frames,
         "schedule": algo.eps_schedule,
     }
-    if exploration.name == "none":
+    if exploration.name in ("none", "noisy"):  # a NoisyNet explores through its own noise
         return actor, None
-    if dynamics is None:
+    if dynamics is None:  # egreedy, rnd
         egreedy = AnnealedEGreedyModule(action_spec, **schedule, device=action_spec.device)
         return TensorDictSequential(actor, egreedy), egreedy
     novelty = make_novelty(exploration, observation_size, env_batch_size, action_spec.device)
@@ -270,12 +324,20 @@ class ReplayTransitions:
 
     KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
 
-    def __init__(self, n_steps: int, gamma: float) -> None:
+    def __init__(self, n_steps: int, gamma: float, *, intrinsic_coef: float | None = None) -> None:
         self.multistep = MultiStepTransform(n_steps, gamma, done_keys=["done", "truncated"]) if n_steps > 1 else None
+        self.intrinsic_coef = intrinsic_coef
 
     def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
-        """Transitions of ``frames`` (``(time,)`` or ``(envs, time)``) as a flat batch; ``None`` while held back."""
-        frames = one_step_transitions(frames)
+        """Transitions of ``frames`` (``(time,)`` or ``(envs, time)``) as a flat batch; ``None`` while held back.
+
+        With ``intrinsic_coef``, the stored reward is ``reward + intrinsic_coef * ("next", "intrinsic_reward")``.
+        """
+        transitions = one_step_transitions(frames)
+        if self.intrinsic_coef is not None:
+            reward = frames.get(("next", "reward")) + self.intrinsic_coef * frames.get(("next", "intrinsic_reward"))
+            transitions.set(("next", "reward"), reward)
+        frames = transitions
         if self.multistep is not None:
             frames = self.multistep.inv(frames)
             if frames is None:
@@ -358,15 +420,26 @@ def fit_q_input_norm(agent: DQNAgent, replay_buffer: ReplayBuffer) -> None:
 
 
 def update_q(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> float:
-    """One DQN gradient step (TorchRL's DQNLoss) and a target-network update."""
+    """One DQN gradient step (TorchRL's DQNLoss) and a target-network update; the RND predictor learns on the same batch."""
     sample = replay_buffer.sample(batch_size)
     batch = sample.exclude("index")  # the same keys at every call, so a compiled step is traced once
     loss = agent.q_step(batch)
     agent.target_updater.step()
+    if agent.noisy:
+        agent.actor.apply(reset_noise)
+    if agent.rnd is not None:
+        update_rnd(agent, batch)
     if isinstance(replay_buffer, TensorDictPrioritizedReplayBuffer):
         sample.set("td_error", batch.get("td_error"))
         replay_buffer.update_tensordict_priority(sample)
     return loss
+
+
+def update_rnd(agent: DQNAgent, batch: TensorDictBase) -> float:
+    """One step of the RND predictor, normalizing observations with the statistics the transform collects with."""
+    if agent.rnd_loss.obs_rms is None:  # the transform creates them at its first step
+        agent.rnd_loss.obs_rms = agent.rnd.obs_rms
+    return agent.rnd_step(batch)
 
 
 def update_dynamics(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> float:

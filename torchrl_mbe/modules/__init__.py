@@ -6,6 +6,7 @@ from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.novelty import (
     DiagonalGaussianDensity,
     GaussianKernelNovelty,
+    KernelDensityNovelty,
     KNearestNovelty,
     RollingGaussianDensity,
     RollingWindowNovelty,
@@ -17,6 +18,7 @@ __all__ = [
     "DiagonalGaussianDensity",
     "DynamicsModel",
     "GaussianKernelNovelty",
+    "KernelDensityNovelty",
     "KNearestNovelty",
     "ModelBasedExplorationPolicy",
     "NoveltyPlanner",

@@ -6,7 +6,7 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import nn
 from torchrl.data import TensorSpec
-from torchrl.modules import MLP
+from torchrl.modules import MLP, NoisyLinear
 
 __all__ = ["init_linear_layers", "make_per_action_mlp"]
 
@@ -19,6 +19,7 @@ def init_linear_layers(
     """Re-initializes every ``nn.Linear`` of ``network`` in place and returns it.
 
     The defaults are Keras' (Glorot-uniform weights, zero biases), which the paper's code used.
+    TorchRL's ``NoisyLinear`` layers keep their own initialization (means and noise scales).
 
     Examples:
         >>> from torch import nn
@@ -28,7 +29,7 @@ def init_linear_layers(
         [1.0, 1.0]
     """
     for layer in network.modules():
-        if isinstance(layer, nn.Linear):
+        if isinstance(layer, nn.Linear) and not isinstance(layer, NoisyLinear):
             init_weight(layer.weight)
             init_bias(layer.bias)
     return network
@@ -42,11 +43,14 @@ def make_per_action_mlp(
     init_weight: Callable[[torch.Tensor], torch.Tensor] = nn.init.xavier_uniform_,
     init_bias: Callable[[torch.Tensor], torch.Tensor] = nn.init.zeros_,
     device: torch.device | str = "cpu",
+    noise_std: float | None = None,
 ) -> MLP:
     """An ``MLP`` from observations to one output per discrete action of ``action_spec``.
 
     Every layer's weights and biases start from ``init_weight`` and ``init_bias``
-    (``nn.init`` functions, e.g. ``partial(nn.init.normal_, std=0.3)``).
+    (``nn.init`` functions, e.g. ``partial(nn.init.normal_, std=0.3)``). With
+    ``noise_std``, the layers are TorchRL's ``NoisyLinear`` (a NoisyNet, its noise
+    starting at that scale), which keep their own initialization.
 
     Examples:
         >>> import torch
@@ -54,12 +58,16 @@ def make_per_action_mlp(
         >>> from torchrl_mbe.modules import make_per_action_mlp
         >>> make_per_action_mlp(2, OneHot(3), [16])(torch.zeros(5, 2)).shape
         torch.Size([5, 3])
+        >>> type(make_per_action_mlp(2, OneHot(3), [16], noise_std=0.5)[0]).__name__
+        'NoisyLinear'
     """
+    noisy = {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": noise_std}} if noise_std is not None else {}
     network = MLP(
         in_features=observation_size,
         out_features=action_spec.space.n,
         num_cells=list(num_cells),
         activation_class=activation_class,
         device=device,
+        **noisy,
     )
     return init_linear_layers(network, init_weight, init_bias)
