@@ -190,7 +190,7 @@ def _env_section(
         if figure is not None:
             written.append(figure)
             lines += [f"![learning curves]({figure.name})", ""]
-    exploration = group_runs([r for r in runs if r.is_exploration])
+    exploration = group_runs([r for r in runs if r.is_exploration or r.visited_states is not None])  # learning runs too, if saved
     if exploration:
         bounds, fitted = env_bounds(env, runs)
         lines += _exploration_section(exploration, bounds, fitted, window, bins)
