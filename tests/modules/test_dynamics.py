@@ -67,6 +67,17 @@ def test_normalization_refits_from_a_replay_buffer_and_travels_with_state_dict()
     torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
 
 
+def test_a_dimension_that_never_moved_before_the_fit_does_not_blow_up_the_loss_when_it_does():
+    early = linear_transitions(256, OneHot(3))
+    early["observation"][:, 1] = 0.0  # a leg contact before the first touch: constant, and so is its delta
+    early["next", "observation"][:, 1] = 0.0
+    dynamics = DynamicsModel(2, OneHot(3))
+    dynamics.fit_normalization(early)
+    later = linear_transitions(256, OneHot(3))
+    later["next", "observation"][:, 1] = (torch.rand(256) < 0.5).float()  # the contact now switches
+    assert DynamicsLoss(dynamics)(later)["loss_dynamics"] < 10.0  # in units of the fitted spread, not of a 1e-6 floor
+
+
 def test_dynamics_loss_reads_renamed_and_nested_keys():
     dynamics = DynamicsModel(2, OneHot(3))
     loss = DynamicsLoss(dynamics)

@@ -140,7 +140,7 @@ class DynamicsModel(TensorDictModuleBase):
 
         Keyword Args:
             next_observation_key (NestedKey): where the next observation is.
-            min_scale (float): floor on every standard deviation (constant dims).
+            min_scale (float): dimensions whose standard deviation is at most this are left unscaled.
         """
         if isinstance(data, ReplayBuffer):
             data = data[: len(data)]

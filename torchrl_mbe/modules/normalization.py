@@ -26,6 +26,9 @@ class Standardize(nn.Module):
         >>> standardize.fit(torch.tensor([[0.0, 10.0], [2.0, 30.0]]))
         >>> standardize(torch.tensor([1.0, 20.0]))
         tensor([0., 0.])
+        >>> standardize.fit(torch.tensor([[0.0, 10.0], [0.0, 30.0]]))  # the first feature never varied
+        >>> standardize(torch.tensor([1.0, 20.0]))
+        tensor([1., 0.])
     """
 
     def __init__(self, num_features: int, *, device: torch.device | str | None = None) -> None:
@@ -38,9 +41,16 @@ class Standardize(nn.Module):
 
     @torch.no_grad()
     def fit(self, samples: torch.Tensor, min_scale: float = 1e-6) -> None:
-        """Sets ``loc``/``scale`` to the mean and standard deviation of ``samples`` (``(N, num_features)``)."""
+        """Sets ``loc``/``scale`` to the mean and standard deviation of ``samples`` (``(N, num_features)``).
+
+        A feature whose standard deviation is at most ``min_scale`` (one that did
+        not vary in ``samples``, like LunarLander's leg contacts before the first
+        touch) keeps scale 1, as in scikit-learn's ``StandardScaler``: dividing by
+        a floor would turn its first change into a value of millions.
+        """
         samples = samples.reshape(-1, self.loc.numel())
         if samples.shape[0] < 2:
             raise ValueError("Standardize.fit needs at least two samples.")
+        std = samples.std(0)
         self.loc.copy_(samples.mean(0))
-        self.scale.copy_(samples.std(0).clamp_min(min_scale))
+        self.scale.copy_(torch.where(std > min_scale, std, torch.ones_like(std)))
