@@ -189,6 +189,17 @@ def make_rnd(
 
     The loss reads the transform's running observation statistics once they
     exist (after the first collected step; see :func:`update_rnd`).
+
+    Examples:
+        >>> import torch
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_mbe import make_env
+        >>> from torchrl_mbe.app.config import RNDExploration
+        >>> from torchrl_mbe.app.dqn import make_rnd
+        >>> env = make_env("mountaincar", num_envs=4, seed=0)
+        >>> rnd, loss, step = make_rnd(OmegaConf.structured(RNDExploration()), env, 2, torch.device("cpu"), compile=False)
+        >>> env.rollout(3)["next", "intrinsic_reward"].shape
+        torch.Size([4, 3, 1])
     """
     target, predictor = (
         MLP(in_features=observation_size, out_features=exploration.embedding_size, num_cells=list(exploration.num_cells), device=device)
