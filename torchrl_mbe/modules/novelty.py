@@ -350,6 +350,16 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         return torch.eye(self.num_features, dtype=covariance.dtype, device=covariance.device).expand_as(covariance)
 
 
+def _offsets_in_window_spreads(states: torch.Tensor, stored: torch.Tensor, min_scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(s - s_i) / sigma`` for every state and stored state, ``(..., N, D)``, and ``sigma``.
+
+    ``sigma`` is the window's spread in each dimension, floored at ``min_scale``:
+    the scale-free distances of :class:`KNearestNovelty` and :class:`KernelDensityNovelty`.
+    """
+    spread = stored.std(-2, correction=0, keepdim=True).clamp_min(min_scale)
+    return (states.unsqueeze(-2) - stored) / spread, spread
+
+
 class KNearestNovelty(RollingWindowNovelty):
     """Distance to the ``k`` nearest states of the window (a k-nearest-neighbour novelty).
 
@@ -399,11 +409,9 @@ class KNearestNovelty(RollingWindowNovelty):
         """Mean scaled distance to the ``k`` nearest stored states: higher = rarer; zeros while the window is empty."""
         if self.num_stored == 0:
             return states.new_zeros(states.shape[:-1])
-        states = self._check_shape(states)
-        stored = self.window_states()
-        scale = stored.std(-2, correction=0, keepdim=True).clamp_min(self.min_scale)
-        distances = ((states.unsqueeze(-2) - stored) / scale).norm(dim=-1)
-        return distances.topk(min(self.k, stored.shape[-2]), dim=-1, largest=False).values.mean(-1)
+        offsets, _ = _offsets_in_window_spreads(self._check_shape(states), self.window_states(), self.min_scale)
+        distances = offsets.norm(dim=-1)
+        return distances.topk(min(self.k, self.num_stored), dim=-1, largest=False).values.mean(-1)
 
 
 class KernelDensityNovelty(RollingWindowNovelty):
@@ -452,10 +460,9 @@ class KernelDensityNovelty(RollingWindowNovelty):
         """``-log`` of the kernel density at each state: higher = rarer; zeros while the window is empty."""
         if self.num_stored == 0:
             return states.new_zeros(states.shape[:-1])
-        states = self._check_shape(states)
-        stored = self.window_states()
-        count, dims = stored.shape[-2], stored.shape[-1]
-        bandwidth = stored.std(-2, correction=0, keepdim=True).clamp_min(self.min_scale) * count ** (-1.0 / (dims + 4))
-        scaled = (states.unsqueeze(-2) - stored) / bandwidth
-        log_kernels = -0.5 * scaled.square().sum(-1) - bandwidth.log().sum(-1) - 0.5 * dims * math.log(2 * math.pi)
+        offsets, spread = _offsets_in_window_spreads(self._check_shape(states), self.window_states(), self.min_scale)
+        count, dims = self.num_stored, self.num_features
+        scott = count ** (-1.0 / (dims + 4))  # bandwidth = spread * scott
+        log_bandwidths = spread.log().sum(-1) + dims * math.log(scott)
+        log_kernels = -0.5 * (offsets / scott).square().sum(-1) - log_bandwidths - 0.5 * dims * math.log(2 * math.pi)
         return -(torch.logsumexp(log_kernels, dim=-1) - math.log(count))
