@@ -240,6 +240,27 @@ class TestGrouping:
         assert row[2:6] == ["1/2", "-112.5 [-105.0, -120.0]", "-104.0 [-104.0, -104.0]", "30000 [30000, –]"]
 
 
+    def test_summary_gives_medians_over_the_seeds_that_solved_and_a_frames_to_solved_figure(self, tmp_path):
+        returns = np.r_[np.full(3, -200.0), np.full(3, -100.0)]  # first success: episode 4
+        outcomes = [(True, 20000, 40.0, 500.0), (True, 60000, 100.0, 300.0), (False, None, None, 400.0)]
+        for seed, (solved, frames, seconds, fps) in enumerate(outcomes):
+            write_run(tmp_path / f"s{seed}", "dqn+knn", seed, returns, final_eval=-100.0 - 10 * seed, experiment={
+                "solved": solved, "solved_at_frames": frames, "solved_at_wall_time_s": seconds, "frames_per_s": fps})
+        main([str(tmp_path), "--out", str(tmp_path / "report")])
+        row = table_row((tmp_path / "report" / "results.md").read_text(), "### Summary", "dqn+knn")
+        assert row[1:] == ["2/3", "40000", "70", "4", "-110.0", "–", "400"]
+        assert_png(tmp_path / "report" / "frames_to_solved_MountainCar-v0.png")
+
+    def test_coverage_figure_wraps_many_methods_into_rows(self, tmp_path):
+        for count in (4, 5):
+            for index in range(count):
+                write_run(tmp_path / f"m{count}" / str(index), f"dqn+m{index}", 0, np.full(4, -200.0),
+                          states=mountaincar_cells([(index, index)]))
+            main([str(tmp_path / f"m{count}"), "--out", str(tmp_path / f"report{count}")])
+        one_row = assert_png(tmp_path / "report4" / "coverage_MountainCar-v0.png")
+        two_rows = assert_png(tmp_path / "report5" / "coverage_MountainCar-v0.png")
+        assert two_rows.shape[1] == one_row.shape[1] and two_rows.shape[0] > 1.8 * one_row.shape[0]
+
     def test_coverage_colour_bar_ends_at_the_last_finished_episode(self, tmp_path):
         run_dir = write_run(tmp_path / "r", "explore:gaussian", 0, np.full(4, -200.0), states=mountaincar_cells([(1, 1)] * 5))
         episodes = np.load(run_dir / "visited_episodes.npy")

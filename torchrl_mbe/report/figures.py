@@ -14,7 +14,7 @@ from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import Run, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
+__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
 
 logger = logging.getLogger(__name__)
 
@@ -78,6 +78,36 @@ def plot_greedy_evaluations(
     return _finish_returns_plot(fig, groups, labels, f"{env}: greedy evaluations, one line per seed", path)
 
 
+def plot_frames_to_solved(env: str, groups: dict[str, list[Run]], colors: dict[str, str], path: Path) -> Path | None:
+    """Per method, each seed's frames to its first solved evaluation (dots) or its whole run if it never solved
+    (crosses); ``None`` if no run has a ``solved`` flag in its summary."""
+    fig = Figure(figsize=(max(6.0, 1.1 * len(groups) + 2.0), 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    plotted = False
+    for column, (method, runs) in enumerate(groups.items()):
+        judged = [run.summary for run in runs if "solved" in run.summary]
+        solved = [s["solved_at_frames"] for s in judged if s["solved"] and s.get("solved_at_frames") is not None]
+        unsolved = [s["frames"] for s in judged if not s["solved"]]
+        offsets = np.linspace(-0.15, 0.15, max(len(judged), 1))
+        ax.scatter(column + offsets[: len(solved)], solved, color=colors[method], marker="o", zorder=3)
+        ax.scatter(column + offsets[len(solved) : len(judged)], unsolved, color=colors[method], marker="x", zorder=3)
+        if solved:
+            ax.hlines(np.median(solved), column - 0.3, column + 0.3, color=colors[method], linewidth=2)
+        plotted = plotted or bool(judged)
+    if not plotted:
+        return None
+    ax.set_xticks(range(len(groups)), [f"{m}\n{_solved_count(r)}" for m, r in groups.items()], fontsize=8)
+    ax.set_ylabel("frames")
+    ax.set_ylim(bottom=0)
+    ax.set_title(f"{env}: frames to solved (dots, bar: median) or run length if never solved (crosses)", fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+    return save_figure(fig, path)
+
+
+def _solved_count(runs: list[Run]) -> str:
+    return f"{sum(run.summary.get('solved') is True for run in runs)}/{len(runs)} solved"
+
+
 def _finish_returns_plot(fig: Figure, groups: dict[str, list[Run]], axis_labels: tuple[str, str], title: str, path: Path) -> Path:
     """The solved threshold as a dashed line, axis labels, title, grid and legend; saves the figure."""
     ax = fig.axes[0]
@@ -113,11 +143,19 @@ def last_finished_episode(runs: list[Run]) -> int:
     return max(max(len(run.returns), 1) for run in runs)
 
 
+_COVERAGE_COLUMNS = 4  # panels per row of the coverage figure
+
+
 def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: EnvBounds, bins: int, path: Path) -> Path:
     """One scatter panel per method, of its best-covering run: ``best[method] = (run, coverage, num_seeds)``."""
     x_dim, y_dim = bounds.plane
-    fig = Figure(figsize=(4.2 * len(best) + 1.0, 4.4), layout="constrained")
-    axes = fig.subplots(1, len(best), squeeze=False, sharex=True, sharey=True)[0]
+    columns = min(len(best), _COVERAGE_COLUMNS)
+    rows = -(-len(best) // columns)
+    fig = Figure(figsize=(4.2 * columns + 1.0, 4.0 * rows + 0.4), layout="constrained")
+    grid = fig.subplots(rows, columns, squeeze=False, sharex=True, sharey=True)
+    for ax in grid.flat[len(best) :]:
+        ax.set_visible(False)
+    axes = grid.flat[: len(best)]
     norm = Normalize(1, last_finished_episode([run for run, _, _ in best.values()]))
     scatter = None
     for ax, (method, (run, coverage, num_seeds)) in zip(axes, best.items()):
@@ -129,7 +167,8 @@ def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: Env
         ax.set_title(f"{method}\ncoverage {coverage:.1%} (seed {run.seed}, best of {num_seeds})", fontsize=10)
         ax.set_xlabel(bounds.labels[x_dim])
         ax.grid(alpha=0.3)
-    axes[0].set_ylabel(bounds.labels[y_dim])
+    for ax in grid[:, 0]:
+        ax.set_ylabel(bounds.labels[y_dim])
     all_states = np.concatenate([run.visited_states for run, _, _ in best.values()])
     for set_lim, dim in ((axes[0].set_xlim, x_dim), (axes[0].set_ylim, y_dim)):
         set_lim(min(bounds.low[dim], all_states[:, dim].min()), max(bounds.high[dim], all_states[:, dim].max()))

@@ -2,13 +2,13 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from torchrl_mbe.envs.registry import EnvBounds
-from torchrl_mbe.report.figures import plot_coverage, plot_greedy_evaluations, plot_learning_curves
+from torchrl_mbe.report.figures import plot_coverage, plot_frames_to_solved, plot_greedy_evaluations, plot_learning_curves
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
 from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, plane_coverage, solved_threshold
 
@@ -25,11 +25,15 @@ def _fmt(value: float | None, digits: int = 1) -> str:
     return str(value) if isinstance(value, int) else f"{value:.{digits}f}"
 
 
+def _reduce(reduce: Callable[[list[float]], float], values: Sequence[float | None], digits: int = 1) -> str:
+    """``reduce`` (np.mean, np.median) of the values that are not ``None``, formatted; ``–`` for none."""
+    present = [v for v in values if v is not None]
+    return _fmt(float(reduce(present)), digits) if present else _MISSING
+
+
 def _mean_and_seeds(values: Sequence[float | None], digits: int = 1) -> str:
     """``mean [per seed]``; the mean is over the seeds that have a value."""
-    present = [v for v in values if v is not None]
-    mean = _fmt(float(np.mean(present)), digits) if present else _MISSING
-    return f"{mean} [{', '.join(_fmt(v, digits) for v in values)}]"
+    return f"{_reduce(np.mean, values, digits)} [{', '.join(_fmt(v, digits) for v in values)}]"
 
 
 def _percent_and_seeds(fractions: Sequence[float]) -> str:
@@ -45,6 +49,36 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
+
+
+def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bins: int, window: int) -> list[str]:
+    """One row per method: how often and how fast it solved, and what its exploration cost and covered."""
+    rows = []
+    for method, runs in groups.items():
+        summaries = [r.summary for r in runs]
+        with_states = [r for r in runs if r.visited_states is not None]
+        coverage = [100.0 * plane_coverage(r, bounds, bins) for r in with_states] if bounds is not None else []
+        rows.append(
+            [
+                method,
+                f"{sum(s.get('solved') is True for s in summaries)}/{len(runs)}",
+                _reduce(np.median, [s.get("solved_at_frames") for s in summaries], 0),
+                _reduce(np.median, [s.get("solved_at_wall_time_s") for s in summaries], 0),
+                _reduce(np.median, [r.stats(window).first_success_episode for r in runs], 0),
+                _reduce(np.mean, [r.final_eval_return for r in runs]),
+                _reduce(np.mean, coverage) + "%" * bool(coverage),
+                _reduce(np.mean, [s.get("frames_per_s") for s in summaries], 0),
+            ]
+        )
+    header = [
+        "method", "solved", "frames to solved (median)", "seconds to solved (median)", "first success episode (median)",
+        "final greedy eval (mean)", "coverage (mean)", "frames/s (mean)",
+    ]
+    note = (
+        "Medians of frames and seconds to solved are over the seeds that solved; the per-seed values are in the "
+        "tables below."
+    )
+    return ["### Summary", "", *_table(header, rows), "", note, ""]
 
 
 def _learning_section(groups: dict[str, list[Run]], window: int) -> list[str]:
@@ -177,9 +211,15 @@ def _env_section(
 ) -> tuple[list[str], list[Path]]:
     """The markdown lines and figures of one environment."""
     lines, written = [f"## {env}", ""], []
+    bounds, fitted = env_bounds(env, runs)
     learning = group_runs([r for r in runs if not r.is_exploration])
     if learning:
         colors = {label: f"C{i % 10}" for i, label in enumerate(learning)}  # one per group of this env
+        lines += _summary_section(learning, bounds, bins, window)
+        figure = plot_frames_to_solved(env, learning, colors, out_dir / f"frames_to_solved_{file_stem(env)}.png")
+        if figure is not None:
+            written.append(figure)
+            lines += [f"![frames to solved]({figure.name})", ""]
         lines += _greedy_section(learning)
         figure = plot_greedy_evaluations(env, learning, colors, out_dir / f"greedy_evaluations_{file_stem(env)}.png")
         if figure is not None:
@@ -192,7 +232,6 @@ def _env_section(
             lines += [f"![learning curves]({figure.name})", ""]
     exploration = group_runs([r for r in runs if r.is_exploration or r.visited_states is not None])  # learning runs too, if saved
     if exploration:
-        bounds, fitted = env_bounds(env, runs)
         lines += _exploration_section(exploration, bounds, fitted, window, bins)
         best = _best_runs(exploration, bounds, bins) if bounds is not None else {}
         if best:
