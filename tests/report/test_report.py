@@ -243,12 +243,17 @@ class TestGrouping:
     def test_summary_gives_medians_over_the_seeds_that_solved_and_a_frames_to_solved_figure(self, tmp_path):
         returns = np.r_[np.full(3, -200.0), np.full(3, -100.0)]  # first success: episode 4
         outcomes = [(True, 20000, 40.0, 500.0), (True, 60000, 100.0, 300.0), (False, None, None, 400.0)]
+        cells = [[(0, 0), (1, 1)], [(0, 0), (1, 1), (2, 2), (3, 3)], None]  # 6 and 12 visited states, none
         for seed, (solved, frames, seconds, fps) in enumerate(outcomes):
-            write_run(tmp_path / f"s{seed}", "dqn+knn", seed, returns, final_eval=-100.0 - 10 * seed, experiment={
-                "solved": solved, "solved_at_frames": frames, "solved_at_wall_time_s": seconds, "frames_per_s": fps})
+            states = None if cells[seed] is None else mountaincar_cells(cells[seed])
+            write_run(tmp_path / f"s{seed}", "dqn+knn", seed, returns, final_eval=-100.0 - 10 * seed, states=states,
+                      experiment={"solved": solved, "solved_at_frames": frames, "solved_at_wall_time_s": seconds,
+                                  "frames_per_s": fps})
         main([str(tmp_path), "--out", str(tmp_path / "report")])
-        row = table_row((tmp_path / "report" / "results.md").read_text(), "### Summary", "dqn+knn")
-        assert row[1:] == ["2/3", "40000", "70", "4", "-110.0", "–", "400"]
+        markdown = (tmp_path / "report" / "results.md").read_text()
+        assert "coverage of the first 6 frames" in markdown.split("### Summary", 1)[1].split("\n\n")[1]
+        row = table_row(markdown, "### Summary", "dqn+knn")
+        assert row[1:] == ["2/3", "40000", "70", "4", "-110.0", "0.5%", "400"]  # 2 of 400 cells in each run's first 6
         assert_png(tmp_path / "report" / "frames_to_solved_MountainCar-v0.png")
 
     def test_coverage_figure_wraps_many_methods_into_rows(self, tmp_path):

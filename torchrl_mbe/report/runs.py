@@ -277,7 +277,9 @@ def solved_threshold(groups: dict[str, list[Run]]) -> float | None:
     return next(iter(groups.values()))[0].solved_threshold
 
 
-def plane_coverage(run: Run, bounds: EnvBounds, bins: int) -> float:
-    return grid_coverage(run.visited_states, bounds.plane_low, bounds.plane_high, bins, dims=bounds.plane)
+def plane_coverage(run: Run, bounds: EnvBounds, bins: int, *, first: int | None = None) -> float:
+    """Grid coverage of the run's visited states (its ``first`` ones only, if given) on the env's plane."""
+    states = run.visited_states[:first]
+    return grid_coverage(states, bounds.plane_low, bounds.plane_high, bins, dims=bounds.plane)
 
 

@@ -52,12 +52,19 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
 
 
 def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bins: int, window: int) -> list[str]:
-    """One row per method: how often and how fast it solved, and what its exploration cost and covered."""
+    """One row per method: how often and how fast it solved, and what its exploration cost and covered.
+
+    Coverage is over the first visited states of each run, as many as the shortest run of the table
+    visited, so that runs that stopped early and runs that went on are compared on equal frames.
+    """
+    visited = [r.visited_states for runs in groups.values() for r in runs if r.visited_states is not None]
+    frames = min((len(states) for states in visited), default=None)
+    coverage_header = "coverage (mean)" if frames is None else f"coverage of the first {frames} frames (mean)"
     rows = []
     for method, runs in groups.items():
         summaries = [r.summary for r in runs]
-        with_states = [r for r in runs if r.visited_states is not None]
-        coverage = [100.0 * plane_coverage(r, bounds, bins) for r in with_states] if bounds is not None else []
+        with_states = [r for r in runs if r.visited_states is not None] if bounds is not None else []
+        coverage = [100.0 * plane_coverage(r, bounds, bins, first=frames) for r in with_states]
         rows.append(
             [
                 method,
@@ -72,7 +79,7 @@ def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bin
         )
     header = [
         "method", "solved", "frames to solved (median)", "seconds to solved (median)", "first success episode (median)",
-        "final greedy eval (mean)", "coverage (mean)", "frames/s (mean)",
+        "final greedy eval (mean)", coverage_header, "frames/s (mean)",
     ]
     note = (
         "Medians of frames and seconds to solved are over the seeds that solved; the per-seed values are in the "
