@@ -233,7 +233,8 @@ def file_stem(env: str) -> str:
 
 _METHOD_ORDER = (
     "explore:random", "explore:kernel", "explore:gaussian", "explore:oracle",
-    "dqn+gaussian", "dqn+kernel", "dqn+egreedy", "dqn+none", "reinforce",
+    "dqn+gaussian", "dqn+kernel", "dqn+diagonal", "dqn+kde", "dqn+knn", "dqn+rnd", "dqn+noisy", "dqn+egreedy",
+    "dqn+none", "reinforce",
 )
 """Methods in the paper's order (baselines beside the proposal); others follow alphabetically."""
 
