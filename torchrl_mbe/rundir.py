@@ -40,7 +40,7 @@ VISITED_EPISODES = "visited_episodes.npy"
 TABLES: dict[str, tuple[str, ...]] = {
     "episodes": ("episode", "frames", "return", "length", "reached_goal", "eps", "wall_time_s"),
     "evaluations": ("frames", "episode", "eval_return_mean", "eval_return_std", "eval_success_rate"),
-    "updates": ("frames", "updates", "loss_q", "loss_dynamics", "dynamics_val_error", "eps", "frames_per_s"),
+    "updates": ("frames", "updates", "loss_q", "loss_dynamics", "dynamics_val_error", "loss_rnd", "eps", "frames_per_s"),
 }
 """The CSV tables of a run and their columns."""
 

@@ -17,7 +17,7 @@ from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT
 
 @pytest.mark.parametrize("exploration", ["gaussian", "kernel", "diagonal", "knn", "kde", "rnd", "noisy", "egreedy", "none"])
 def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration, compose_config, read_table):
-    summary = train(compose_config(f"exploration={exploration}"), tmp_path)
+    summary = train(compose_config(f"exploration={exploration}", "logger.log_every_updates=10"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] >= 50  # 0.25 updates per frame after 100
     assert summary["method"] == f"dqn+{exploration}"
     assert (summary["dynamics_updates"] > 0) == (exploration not in ("rnd", "noisy", "egreedy", "none"))
@@ -25,6 +25,9 @@ def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, explo
     assert [int(row["episode"]) for row in episodes] == list(range(1, summary["episodes"] + 1))
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     assert (tmp_path / CHECKPOINT).exists()
+    updates = read_table(tmp_path, "updates")
+    assert updates and all(bool(row["loss_rnd"]) == (exploration == "rnd") for row in updates)
+    assert all(float(row["loss_rnd"]) > 0 for row in updates if exploration == "rnd")  # the predictor's error, logged
 
 
 @pytest.mark.parametrize("env", ["lunarlander", "acrobot", "cartpole"])

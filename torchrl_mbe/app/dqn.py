@@ -400,12 +400,12 @@ def learn_from_new_frames(
     while progress.q_update_credit >= 1:
         if progress.q_updates == 0 and agent.q_input_norm is not None:
             fit_q_input_norm(agent, replay_buffer)
-        loss_q = update_q(agent, replay_buffer, algo.batch_size)
+        losses = update_q(agent, replay_buffer, algo.batch_size)
         progress.q_updates += 1
         progress.q_update_credit -= 1
         every = run.cfg.logger.log_every_updates
         if every and progress.q_updates % every == 0:
-            log_updates(loss_q, agent, run)
+            log_updates(losses, agent, run)
 
 
 def q_learning_rate(algo: DictConfig, frames: int) -> float:
@@ -430,20 +430,23 @@ def fit_q_input_norm(agent: DQNAgent, replay_buffer: ReplayBuffer) -> None:
     agent.q_loss.target_value_network_params.update_(agent.q_loss.value_network_params)
 
 
-def update_q(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> float:
-    """One DQN gradient step (TorchRL's DQNLoss) and a target-network update; the RND predictor learns on the same batch."""
+def update_q(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: int) -> dict[str, float]:
+    """One DQN gradient step (TorchRL's DQNLoss) and a target-network update; the RND predictor learns on the same batch.
+
+    Returns the losses: ``loss_q``, and ``loss_rnd`` (the predictor's) with RND.
+    """
     sample = replay_buffer.sample(batch_size)
     batch = sample.exclude("index")  # the same keys at every call, so a compiled step is traced once
-    loss = agent.q_step(batch)
+    losses = {"loss_q": agent.q_step(batch)}
     agent.target_updater.step()
     if agent.noisy:
         agent.actor.apply(reset_noise)
     if agent.rnd is not None:
-        update_rnd(agent, batch)
+        losses["loss_rnd"] = update_rnd(agent, batch)
     if isinstance(replay_buffer, TensorDictPrioritizedReplayBuffer):
         sample.set("td_error", batch.get("td_error"))
         replay_buffer.update_tensordict_priority(sample)
-    return loss
+    return losses
 
 
 def update_rnd(agent: DQNAgent, batch: TensorDictBase) -> float:
@@ -458,14 +461,14 @@ def update_dynamics(agent: DQNAgent, replay_buffer: ReplayBuffer, batch_size: in
     return agent.dynamics_step(replay_buffer.sample(batch_size).exclude("index"))
 
 
-def log_updates(loss_q: float, agent: DQNAgent, run: Run) -> None:
+def log_updates(losses: dict[str, float], agent: DQNAgent, run: Run) -> None:
     progress = run.progress
     run.logger.log(
         "updates",
         {
             "frames": progress.frames,
             "updates": progress.q_updates,
-            "loss_q": loss_q,
+            **losses,
             "loss_dynamics": progress.last_loss_dynamics,
             "dynamics_val_error": progress.dynamics_val_error,
             "eps": agent.eps,
