@@ -12,7 +12,7 @@ from matplotlib.ticker import MaxNLocator
 
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
-from torchrl_mbe.report.runs import Run, solved_threshold
+from torchrl_mbe.report.runs import Run, solved_count, solved_threshold
 
 __all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
 
@@ -96,16 +96,12 @@ def plot_frames_to_solved(env: str, groups: dict[str, list[Run]], colors: dict[s
         plotted = plotted or bool(judged)
     if not plotted:
         return None
-    ax.set_xticks(range(len(groups)), [f"{m}\n{_solved_count(r)}" for m, r in groups.items()], fontsize=8)
+    ax.set_xticks(range(len(groups)), [f"{m}\n{solved_count(r)} solved" for m, r in groups.items()], fontsize=8)
     ax.set_ylabel("frames")
     ax.set_ylim(bottom=0)
     ax.set_title(f"{env}: frames to solved (dots, bar: median) or run length if never solved (crosses)", fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     return save_figure(fig, path)
-
-
-def _solved_count(runs: list[Run]) -> str:
-    return f"{sum(run.summary.get('solved') is True for run in runs)}/{len(runs)} solved"
 
 
 def _finish_returns_plot(fig: Figure, groups: dict[str, list[Run]], axis_labels: tuple[str, str], title: str, path: Path) -> Path:

@@ -37,7 +37,7 @@ from torchrl_mbe.envs.registry import EnvBounds, task_of
 from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverage
 from torchrl_mbe.rundir import EXPLORATION_PREFIX, SUMMARY, SUMMARY_FIELDS, VISITED_EPISODES, VISITED_STATES, table_file
 
-__all__ = ["RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "file_stem", "method_key"]
+__all__ = ["RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "solved_count", "file_stem", "method_key"]
 
 logger = logging.getLogger(__name__)
 
@@ -276,6 +276,11 @@ def env_bounds(env: str, runs: Sequence[Run]) -> tuple[EnvBounds | None, bool]:
 def solved_threshold(groups: dict[str, list[Run]]) -> float | None:
     """The env's solved threshold, as its first run recorded it."""
     return next(iter(groups.values()))[0].solved_threshold
+
+
+def solved_count(runs: Sequence[Run]) -> str:
+    """``"n/N"``: how many of the runs' summaries say ``solved``."""
+    return f"{sum(run.summary.get('solved') is True for run in runs)}/{len(runs)}"
 
 
 def plane_coverage(run: Run, bounds: EnvBounds, bins: int, *, first: int | None = None) -> float:

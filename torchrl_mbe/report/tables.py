@@ -10,7 +10,7 @@ import numpy as np
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.figures import plot_coverage, plot_frames_to_solved, plot_greedy_evaluations, plot_learning_curves
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
-from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, plane_coverage, solved_threshold
+from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, plane_coverage, solved_count, solved_threshold
 
 __all__ = ["write_report"]
 
@@ -68,7 +68,7 @@ def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bin
         rows.append(
             [
                 method,
-                f"{sum(s.get('solved') is True for s in summaries)}/{len(runs)}",
+                solved_count(runs),
                 _reduce(np.median, [s.get("solved_at_frames") for s in summaries], 0),
                 _reduce(np.median, [s.get("solved_at_wall_time_s") for s in summaries], 0),
                 _reduce(np.median, [r.stats(window).first_success_episode for r in runs], 0),
@@ -122,12 +122,11 @@ def _greedy_section(groups: dict[str, list[Run]]) -> list[str]:
     rows = []
     for method, runs in groups.items():
         summaries = [r.summary for r in runs]
-        solved = [s.get("solved") for s in summaries]
         rows.append(
             [
                 method,
                 ", ".join(str(r.seed) for r in runs),
-                f"{sum(v is True for v in solved)}/{len(runs)}",
+                solved_count(runs),
                 _mean_and_seeds([r.final_eval_return for r in runs]),
                 _mean_and_seeds([s.get("best_eval_return") for s in summaries]),
                 _mean_and_seeds([s.get("solved_at_frames") for s in summaries], 0),
