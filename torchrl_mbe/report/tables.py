@@ -221,21 +221,16 @@ def _env_section(
     learning = group_runs([r for r in runs if not r.is_exploration])
     if learning:
         colors = {label: f"C{i % 10}" for i, label in enumerate(learning)}  # one per group of this env
+        stem = file_stem(env)
         lines += _summary_section(learning, bounds, bins, window)
-        figure = plot_frames_to_solved(env, learning, colors, out_dir / f"frames_to_solved_{file_stem(env)}.png")
-        if figure is not None:
-            written.append(figure)
-            lines += [f"![frames to solved]({figure.name})", ""]
+        figure = plot_frames_to_solved(env, learning, colors, out_dir / f"frames_to_solved_{stem}.png")
+        lines += _embed(figure, "frames to solved", written)
         lines += _greedy_section(learning)
-        figure = plot_greedy_evaluations(env, learning, colors, out_dir / f"greedy_evaluations_{file_stem(env)}.png")
-        if figure is not None:
-            written.append(figure)
-            lines += [f"![greedy evaluations]({figure.name})", ""]
+        figure = plot_greedy_evaluations(env, learning, colors, out_dir / f"greedy_evaluations_{stem}.png")
+        lines += _embed(figure, "greedy evaluations", written)
         lines += _learning_section(learning, window)
-        figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{file_stem(env)}.png")
-        if figure is not None:
-            written.append(figure)
-            lines += [f"![learning curves]({figure.name})", ""]
+        figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{stem}.png")
+        lines += _embed(figure, "learning curves", written)
     exploration = group_runs([r for r in runs if r.is_exploration or r.visited_states is not None])  # learning runs too, if saved
     if exploration:
         lines += _exploration_section(exploration, bounds, fitted, window, bins)
@@ -245,6 +240,14 @@ def _env_section(
             shown = ", ".join(f"{method} seed {run.seed} ({coverage:.1%})" for method, (run, coverage, _) in best.items())
             lines += [f"![visited states]({written[-1].name})", "", f"Panels, best-covering seed per method: {shown}.", ""]
     return lines, written
+
+
+def _embed(figure: Path | None, alt: str, written: list[Path]) -> list[str]:
+    """The markdown lines showing ``figure`` (none if it was not drawn); records it in ``written``."""
+    if figure is None:
+        return []
+    written.append(figure)
+    return [f"![{alt}]({figure.name})", ""]
 
 
 def _best_runs(groups: dict[str, list[Run]], bounds: EnvBounds, bins: int) -> dict[str, tuple[Run, float, int]]:
