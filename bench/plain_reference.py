@@ -204,12 +204,12 @@ class Agent:
         self.q = QNetwork(obs_dim, num_actions, cfg.hidden_size)
         self.target = QNetwork(obs_dim, num_actions, cfg.hidden_size)
         self.target.load_state_dict(self.q.state_dict())
-        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.q_lr)
+        self.q_optimizer = torch.optim.Adam(self.q.parameters(), lr=cfg.q_lr, fused=True)
         self.q_updates = self.dynamics_updates = 0
         self.dynamics = None
         if cfg.exploration == "gaussian":
             self.dynamics = DynamicsModel(obs_dim, num_actions, cfg.dynamics_hidden_size)
-            self.dynamics_optimizer = torch.optim.Adam(self.dynamics.parameters(), lr=cfg.dynamics_lr)
+            self.dynamics_optimizer = torch.optim.Adam(self.dynamics.parameters(), lr=cfg.dynamics_lr, fused=True)
             self.windows = np.zeros((cfg.num_envs, cfg.window, obs_dim), np.float64)
             self.visited = 0
 

@@ -29,6 +29,7 @@ from torchrl_mbe.app.run import (
     GradientStep,
     Run,
     StopOnInterrupt,
+    adam,
     evaluate_and_checkpoint_if_due,
     finish_run,
     open_run,
@@ -160,9 +161,9 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         dynamics_loss.set_keys(next_observation=SUCCESSOR_KEY)
     dynamics_step = None
     if isinstance(dynamics, DynamicsModel):
-        dynamics_optimizer = torch.optim.Adam(dynamics.parameters(), lr=cfg.dynamics.lr)
+        dynamics_optimizer = adam(dynamics.parameters(), cfg.dynamics.lr)
         dynamics_step = GradientStep(lambda batch: dynamics_loss(batch)["loss_dynamics"], dynamics_optimizer, cfg.dynamics.max_grad_norm, compile=cfg.compile)
-    q_optimizer = torch.optim.Adam(q_loss.parameters(), lr=algo.lr)
+    q_optimizer = adam(q_loss.parameters(), algo.lr)
     rnd, rnd_loss, rnd_step = make_rnd(exploration, env, observation_size, device, compile=cfg.compile) if exploration.name == "rnd" else (None,) * 3
     return DQNAgent(
         actor=actor,
@@ -208,7 +209,7 @@ def make_rnd(
     rnd = RNDTransform(target, predictor)
     env.append_transform(rnd)
     loss = RNDLoss(predictor, target)
-    optimizer = torch.optim.Adam(predictor.parameters(), lr=exploration.lr)
+    optimizer = adam(predictor.parameters(), exploration.lr)
     return rnd, loss, GradientStep(lambda batch: loss(batch)["loss_predictor"], optimizer, None, compile=compile)
 
 

@@ -49,10 +49,11 @@ from torchrl.objectives import ReinforceLoss
 from torchrl.objectives.value.functional import reward2go
 
 from torchrl_mbe.app.run import (
+    GradientStep,
     StopOnInterrupt,
+    adam,
     evaluate_and_checkpoint_if_due,
     finish_run,
-    GradientStep,
     open_run,
     play_episode,
     record_frames,
@@ -146,7 +147,7 @@ def build_reinforce_agent(cfg: DictConfig, env: EnvBase) -> ReinforceAgent:
     zero_baseline = TensorDictModule(_zero_value, in_keys=["observation"], out_keys=["state_value"])
     loss = ReinforceLoss(actor, zero_baseline, functional=False)
     gamma = cfg.algo.gamma
-    step = GradientStep(lambda episode: loss(write_advantage(episode, gamma))["loss_actor"], torch.optim.Adam(actor.parameters(), lr=cfg.algo.lr), None)
+    step = GradientStep(lambda episode: loss(write_advantage(episode, gamma))["loss_actor"], adam(actor.parameters(), cfg.algo.lr), None)
     return ReinforceAgent(actor, loss, step, gamma)
 
 

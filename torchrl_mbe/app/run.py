@@ -44,6 +44,7 @@ __all__ = [
     "evaluate",
     "play_episode",
     "GradientStep",
+    "adam",
     "CHECKPOINT_FORMAT",
 ]
 
@@ -351,6 +352,16 @@ def _log_evaluation(result: dict, run: Run) -> None:
     progress = run.progress
     run.logger.log("evaluations", {"frames": progress.frames, "episode": progress.episodes, **result})
     log.info("eval at %d frames: return %.1f", progress.frames, result["eval_return_mean"])
+
+
+def adam(parameters, lr: float) -> torch.optim.Adam:
+    """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
+
+    The same update as the default per-parameter loop in fewer kernel calls,
+    which is most of its cost for this project's small networks
+    (docs/performance.md).
+    """
+    return torch.optim.Adam(parameters, lr=lr, fused=True)
 
 
 class GradientStep:
