@@ -186,7 +186,41 @@ def bench_exploration_step(budget: Budget) -> list[Measurement]:
             results.append(Measurement("exploration", f"{name} policy call, {label}", seconds * 1e3, "ms/call"))
         ratio = timing["model-based"] / timing["egreedy"]
         results.append(Measurement("exploration", f"model-based / egreedy, {label}", ratio, "x"))
-    return results
+    return results + planned_step_parts(budget, spec, low, high)
+
+
+def planned_step_parts(budget: Budget, spec: OneHot, low: torch.Tensor, high: torch.Tensor) -> list[Measurement]:
+    """What a planned exploring step on one state adds to the actor call, part by part.
+
+    The window update (every step), the Gaussian's refit and the scores of the
+    predicted states (an exploring step after an update), and the dynamics
+    rollout over every action (one ``DynamicsModel`` call); and what tensordict
+    0.14 adds to every ``TensorDictModule`` output (``TensorDict.from_any`` looks
+    for pandas on each call; tensordict 0.15 skips it for tensors, torchrl 0.14 pins < 0.15).
+    """
+    actor = q_actor(spec)
+    policy = model_based_policy(actor, spec, 1)
+    planner, novelty = policy.planner, policy.novelty
+    states = itertools.cycle([low + (high - low) * torch.rand(2) for _ in range(100)])
+    inputs = itertools.cycle([TensorDict({"observation": next(states)}, []) for _ in range(100)])
+    sequences, predictions = planner._action_sequences(), torch.rand(3, 2)
+    for _ in range(novelty.window):
+        novelty.update(next(states))
+
+    def update_refit_and_score() -> None:
+        novelty.update(next(states))
+        novelty.score(predictions)
+
+    parts = {
+        "planned step part: actor call (QValueActor)": functools.partial(call_on_next, actor, inputs),
+        "planned step part: window update": lambda: novelty.update(next(states)),
+        "planned step part: window update, refit and score": update_refit_and_score,
+        "planned step part: dynamics rollout over 3 actions": lambda: planner._rollout(next(states), sequences),
+        "of the actor call: TensorDict.from_any(tensor)": functools.partial(TensorDict.from_any, predictions),
+    }
+    with torch.no_grad():
+        timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+    return [Measurement("exploration", name, seconds * 1e3, "ms/call") for name, seconds in timing.items()]
 
 
 def bench_collection(budget: Budget) -> list[Measurement]:
