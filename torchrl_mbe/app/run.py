@@ -357,9 +357,8 @@ def _log_evaluation(result: dict, run: Run) -> None:
 def adam(parameters, lr: float) -> torch.optim.Adam:
     """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
 
-    The same update as the default per-parameter loop in fewer kernel calls,
-    which is most of its cost for this project's small networks
-    (docs/performance.md).
+    The same update as the default per-parameter loop, in one kernel call
+    instead of a few per parameter.
     """
     return torch.optim.Adam(parameters, lr=lr, fused=True)
 
