@@ -188,8 +188,8 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         candidates = self.planner.candidate_actions
         if not self.model_trusted:
             return candidates[torch.randint(len(candidates), tensordict.batch_size, device=candidates.device)]
-        planned = self.planner(tensordict.select(self.observation_key))
-        return planned.get(self.planner.out_keys[0])
+        action, _ = self.planner.plan(tensordict.get(self.observation_key))
+        return action
 
 
 def _complete_output_spec(actor: TensorDictModuleBase, planner: NoveltyPlanner, action_key: NestedKey) -> Composite:

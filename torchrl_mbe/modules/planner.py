@@ -98,11 +98,20 @@ class NoveltyPlanner(TensorDictModuleBase):
         self.register_buffer("exhaustive_sequences", sequences, persistent=False)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        scores = self.action_scores(tensordict.get(self.in_keys[0]))
+        action, scores = self.plan(tensordict.get(self.in_keys[0]))
         action_key, scores_key = self.out_keys
-        tensordict.set(action_key, self.candidate_actions[random_argmax(scores)])
+        tensordict.set(action_key, action)
         tensordict.set(scores_key, scores)
         return tensordict
+
+    def plan(self, observation: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The action towards the rarest predicted state for each observation, and every action's score.
+
+        What :meth:`forward` writes, on tensors: the action in the spec's
+        encoding, shape ``(*batch, *action_shape)``, and the scores, ``(*batch, num_actions)``.
+        """
+        scores = self.action_scores(observation)
+        return self.candidate_actions[random_argmax(scores)], scores
 
     @torch.no_grad()
     def action_scores(self, observation: torch.Tensor) -> torch.Tensor:
