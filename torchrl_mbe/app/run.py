@@ -357,8 +357,9 @@ def _log_evaluation(result: dict, run: Run) -> None:
 def adam(parameters, lr: float) -> torch.optim.Adam:
     """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
 
-    The same update as the default per-parameter loop, in one kernel call
-    instead of a few per parameter.
+    The same update as the default per-parameter loop (up to floating-point
+    rounding, so a seed's trajectory differs), in one kernel call instead of a
+    few per parameter.
     """
     return torch.optim.Adam(parameters, lr=lr, fused=True)
 
