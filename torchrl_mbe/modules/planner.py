@@ -109,6 +109,16 @@ class NoveltyPlanner(TensorDictModuleBase):
 
         What :meth:`forward` writes, on tensors: the action in the spec's
         encoding, shape ``(*batch, *action_shape)``, and the scores, ``(*batch, num_actions)``.
+
+        Examples:
+            >>> import torch
+            >>> from torchrl.data import OneHot
+            >>> from torchrl_mbe import DynamicsModel, NoveltyPlanner, RollingGaussianDensity
+            >>> planner = NoveltyPlanner(DynamicsModel(2, OneHot(3)), RollingGaussianDensity(2, window=50), OneHot(3))
+            >>> planner.novelty.update(torch.randn(50, 2))
+            >>> action, scores = planner.plan(torch.zeros(4, 2))  # one-hot actions, one row of scores per state
+            >>> bool((scores[action] == scores.amax(-1)).all())  # each goes to its rarest prediction
+            True
         """
         scores = self.action_scores(observation)
         return self.candidate_actions[random_argmax(scores)], scores
