@@ -363,6 +363,7 @@ def run(cfg: PlainConfig) -> dict:
     if cfg.frames_per_batch % cfg.num_envs:
         raise ValueError(f"frames_per_batch ({cfg.frames_per_batch}) must be a multiple of num_envs ({cfg.num_envs}).")
     torch.set_num_threads(cfg.torch_threads)
+    torch.set_flush_denormal(True)  # as train(cfg) does: subnormal Adam moments slow the CPU down
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     envs = gym.vector.SyncVectorEnv(

@@ -36,6 +36,9 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
+    # Adam's moments of parameters whose gradient is zero (dead ReLU units) decay into
+    # subnormal floats, on which CPU arithmetic is many times slower: flushed to zero.
+    torch.set_flush_denormal(True)
     torch.manual_seed(cfg.seed)
     try:
         return LOOPS[cfg.algo.name](cfg, run_dir)
