@@ -106,3 +106,30 @@ def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compos
         resampled = act()
     assert not torch.equal(noisy, greedy) and not torch.equal(noisy, resampled)
     assert not torch.equal(sigma, noise_scale())  # the noise scale learns: the loss samples the noise
+
+
+def test_compiled_updates_take_the_same_steps_as_eager_ones_and_are_traced_once(compose_config):
+    from torchrl.envs.utils import RandomPolicy
+
+    from torchrl_mbe.app.dqn import make_replay_buffer, update_dynamics, update_q
+
+    torch.manual_seed(0)
+    cfg, env, eager = build_agent(compose_config)
+    torch.manual_seed(0)
+    _, _, compiled = build_agent(compose_config, "compile=true")
+    buffer = make_replay_buffer(cfg.buffer, "cpu")
+    buffer.extend(ReplayTransitions(1, 0.99)(env.rollout(64, RandomPolicy(env.action_spec), break_when_any_done=False)))
+    for agent in (eager, compiled):
+        agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
+    graphs = []
+    for step in range(3):
+        torch.manual_seed(step)
+        eager_losses = update_q(eager, buffer, 32)["loss_q"], update_dynamics(eager, buffer, 32)
+        torch.manual_seed(step)
+        compiled_losses = update_q(compiled, buffer, 32)["loss_q"], update_dynamics(compiled, buffer, 32)
+        assert compiled_losses == pytest.approx(eager_losses, rel=1e-4)
+        graphs.append(torch._dynamo.utils.counters["stats"]["unique_graphs"])
+    assert graphs[0] > 0 and graphs[-1] == graphs[0]  # traced at the first step only
+    assert compiled.q_step._loss_and_backward != compiled.q_step._eager_loss_and_backward  # still compiled
+    for eager_p, compiled_p in zip(eager.q_loss.parameters(), compiled.q_loss.parameters()):
+        torch.testing.assert_close(compiled_p, eager_p, rtol=1e-4, atol=1e-5)

@@ -153,6 +153,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     policy, explorer = make_exploration_policy(cfg, actor, dynamics, action_spec, observation_size, env.batch_size)
     q_loss = DQNLoss(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
+    q_loss.in_keys  # DQNLoss resolves its input keys on first use: now, or a compiled step would be traced twice
     if noise_std is not None:  # a NoisyNet learns through its noise: the loss samples it, as the collector does
         q_loss.deterministic_sampling_mode = ExplorationType.RANDOM
     dynamics_loss = None
