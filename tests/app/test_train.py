@@ -185,6 +185,15 @@ def test_mountaincar_defaults_to_3_step_returns_and_the_paper_to_1(compose_confi
     assert compose_config().algo.n_steps == 3 and compose_config("experiment=paper_mountaincar").algo.n_steps == 1
 
 
+def test_the_gaussian_window_is_200_states_on_mountaincar_only_and_the_papers_50_in_its_presets(compose_config):
+    window = lambda *overrides: compose_config(*overrides).exploration.window  # noqa: E731
+    assert window() == window("exploration=gaussian") == 200
+    assert window("exploration=kernel") == window("env=acrobot") == window("env=lunarlander") == 50
+    assert window("experiment=paper_mountaincar") == window("experiment=coverage_mountaincar") == 50
+    assert window("exploration.window=70") == 70
+    assert "window" not in compose_config("experiment=paper_mountaincar", "exploration=egreedy").exploration
+
+
 def test_resume_of_a_finished_run_changes_nothing_and_a_larger_budget_continues(tmp_path, compose_config, read_table):
     train(compose_config("train.max_frames=160", "eval.final_episodes=1"), tmp_path)
     before = {name: (tmp_path / name).read_bytes() for name in ("summary.json", "episodes.csv", "evaluations.csv")}
