@@ -231,6 +231,18 @@ def test_best_policy_is_kept_and_the_summary_says_solved_or_not(tmp_path, compos
     assert summary["solved"] is (summary["final_eval_return"] >= -110)
 
 
+def test_evaluating_more_often_leaves_training_untouched(tmp_path, compose_config, read_table):
+    """The stop's resolution (``eval.every_frames``) costs evaluation time only: the agent learns the same."""
+    policies = {}
+    for every_frames in (80, 10_000):
+        run_dir = tmp_path / str(every_frames)
+        train(compose_config("train.max_frames=400", "eval.episodes=2", f"eval.every_frames={every_frames}"), run_dir)
+        policies[every_frames] = torch.load(run_dir / CHECKPOINT, weights_only=False)["agent"]["policy"]
+    assert len(read_table(tmp_path / "80", "evaluations")) == 400 // 80 + 1  # the periodic ones and the final one
+    assert policies[80].keys() == policies[10_000].keys()
+    assert all(torch.equal(policies[80][name], policies[10_000][name]) for name in policies[80])
+
+
 def test_stop_when_solved_ends_at_the_first_solved_evaluation(tmp_path, compose_config, monkeypatch):
     monkeypatch.setattr(run_module, "evaluate", lambda *args, **kwargs: {"eval_return_mean": -100.0, "eval_return_std": 0.0, "eval_success_rate": 1.0})
     summary = train(compose_config("train.stop_when_solved=true", "train.max_frames=2000", "eval.episodes=1", "eval.every_frames=160"), tmp_path)
