@@ -42,17 +42,27 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
-from torchrl.data import OneHot
+from torchrl.data import OneHot, ReplayBuffer
 from torchrl.envs import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
+from plain_reference import Agent as PlainAgent
 from plain_reference import PlainConfig
+from plain_reference import ReplayBuffer as PlainReplayBuffer
 from plain_reference import run as run_plain_reference
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
 from torchrl_mbe.app import train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
-from torchrl_mbe.app.dqn import SUCCESSOR_KEY, ReplayTransitions, check_dynamics_on_new_data, make_replay_buffer, update_dynamics, update_q
+from torchrl_mbe.app.dqn import (
+    SUCCESSOR_KEY,
+    ReplayTransitions,
+    check_dynamics_on_new_data,
+    fit_q_input_norm,
+    make_replay_buffer,
+    update_dynamics,
+    update_q,
+)
 from torchrl_mbe.app.run import Progress
 
 RESULTS_DIR = Path(__file__).parent / "results"
@@ -408,6 +418,63 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     return [Measurement("breakdown", name, seconds * 1e3, "ms/frame") for name, seconds in timing.items()]
 
 
+def bench_updates(budget: Budget) -> list[Measurement]:
+    """(g) One Q update and one dynamics update of the default config, through TorchRL and written plainly.
+
+    The default MountainCar config (batches of 256, 2x256 Q-network, double DQN,
+    clipping, fused Adam): ``update_q`` and ``update_dynamics`` of ``train(cfg)``,
+    eager and with ``compile=true`` (timed after its tracing, in the warm-up), against
+    ``Agent.update_q`` and ``Agent.update_dynamics`` of ``bench/plain_reference.py``.
+    All sample from buffers holding the same 2,560 collected frames.
+    """
+    cfg = default_config()
+    env = make_env("mountaincar", seed=0, num_envs=cfg.env.num_envs)
+    agents = {"eager": build_agent(cfg, env), "compiled": build_agent(default_config("compile=true"), env)}
+    buffer = make_replay_buffer(cfg.buffer, cfg.device)
+    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma)
+    collector = Collector(env, agents["eager"].policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=2560)
+    for batch in collector:
+        stored = transitions(batch)
+        if stored is not None:
+            buffer.extend(stored)
+    collector.shutdown()
+    for agent in agents.values():
+        fit_q_input_norm(agent, buffer)
+        agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
+    plain = PlainAgent(plain_config_of(cfg), obs_dim=2, num_actions=3, rng=np.random.default_rng(0))
+    plain_buffer = plain_buffer_of(buffer, cfg.algo.gamma)
+    parts = {}
+    for name, agent in agents.items():
+        parts[f"Q update, train(cfg) {name}"] = functools.partial(update_q, agent, buffer, cfg.algo.batch_size)
+        parts[f"dynamics update, train(cfg) {name}"] = functools.partial(update_dynamics, agent, buffer, cfg.dynamics.batch_size)
+    parts["Q update, plain reference"] = functools.partial(plain.update_q, plain_buffer)
+    parts["dynamics update, plain reference"] = functools.partial(plain.update_dynamics, plain_buffer)
+    parts["  of which: buffer.sample(256), train(cfg)"] = functools.partial(buffer.sample, cfg.algo.batch_size)
+    parts["  of which: buffer.sample(256), plain reference"] = functools.partial(plain_buffer.sample, cfg.algo.batch_size, plain.rng)
+    timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+    results = [Measurement("updates", name, seconds * 1e3, "ms/update") for name, seconds in timing.items()]
+    for update in ("Q update", "dynamics update"):
+        for name in agents:
+            ratio = timing[f"{update}, train(cfg) {name}"] / timing[f"{update}, plain reference"]
+            results.append(Measurement("updates", f"{update}, train(cfg) {name} / plain", ratio, "x"))
+    return results
+
+
+def plain_buffer_of(buffer: ReplayBuffer, gamma: float) -> PlainReplayBuffer:
+    """The plain reference's replay arrays holding the transitions of the app's ``buffer``."""
+    stored = buffer[: len(buffer)]
+    plain = PlainReplayBuffer(len(buffer), stored["observation"].shape[-1])
+    plain.obs[:] = stored["observation"].numpy()
+    plain.action[:] = stored["action"].argmax(-1).numpy()
+    plain.next_obs[:] = stored[SUCCESSOR_KEY].numpy()
+    plain.ret[:] = stored["next", "reward"].squeeze(-1).numpy()
+    plain.bootstrap_obs[:] = stored["next", "observation"].numpy()
+    bootstrap = ~stored["next", "terminated"].squeeze(-1)
+    plain.bootstrap_discount[:] = (gamma ** stored["steps_to_next_obs"].squeeze(-1) * bootstrap).numpy()
+    plain.size = len(buffer)
+    return plain
+
+
 SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
     "gym": bench_gym_stepping,
     "exploration": bench_exploration_step,
@@ -415,6 +482,7 @@ SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
     "training": bench_training_loop,
     "breakdown": bench_loop_breakdown,
     "reference": bench_against_plain_reference,
+    "updates": bench_updates,
 }
 """Run in order; each returns its figures, named after the section."""
 
@@ -469,6 +537,7 @@ def main() -> None:
     parser.add_argument("--note", default="", help="free text stored in the JSON (e.g. which code was measured)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    torch.set_flush_denormal(True)  # as train(cfg) and the plain reference do
     budget = QUICK if args.quick else FULL
     torch.manual_seed(0)
     started = datetime.datetime.now()

@@ -399,14 +399,14 @@ def learn_from_new_frames(
     for group in agent.q_step.optimizer.param_groups:
         group["lr"] = q_learning_rate(algo, frames)
     progress.q_update_credit += new_frames * algo.updates_per_frame
+    batch_size, log_every = algo.batch_size, run.cfg.logger.log_every_updates  # read once: a config lookup costs ~10 us
     while progress.q_update_credit >= 1:
         if progress.q_updates == 0 and agent.q_input_norm is not None:
             fit_q_input_norm(agent, replay_buffer)
-        losses = update_q(agent, replay_buffer, algo.batch_size)
+        losses = update_q(agent, replay_buffer, batch_size)
         progress.q_updates += 1
         progress.q_update_credit -= 1
-        every = run.cfg.logger.log_every_updates
-        if every and progress.q_updates % every == 0:
+        if log_every and progress.q_updates % log_every == 0:
             log_updates(losses, agent, run)
 
 
