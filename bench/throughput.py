@@ -349,27 +349,37 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     gets every setting from the composed config, :func:`plain_config_of`) for ``reference_frames`` frames
     from a cold start, with 1 env (16 frames per batch) and 16 envs (64 frames per
     batch: the torch-batched env in the app, gymnasium's SyncVectorEnv in the
-    reference), each variant timed ``train_repeats`` times in alternation.
+    reference), each variant timed ``train_repeats`` times in alternation. The
+    default (gaussian, 16 envs) runs once more with ``compile=true``, its tracing
+    included, against the same plain figure.
     """
     frames = budget.reference_frames
-    variants = {(exploration, envs, per_batch) for exploration in ("gaussian", "egreedy") for envs, per_batch in ((1, 16), (16, 64))}
-    app, plain = {v: [] for v in variants}, {v: [] for v in variants}
+    plain_variants = sorted((exploration, envs, per_batch) for exploration in ("gaussian", "egreedy") for envs, per_batch in ((1, 16), (16, 64)))
+    app_variants = [(*variant, False) for variant in plain_variants] + [("gaussian", 16, 64, True)]
+    app, plain = {v: [] for v in app_variants}, {v: [] for v in plain_variants}
     for _ in range(budget.train_repeats):
-        for exploration, envs, per_batch in sorted(variants):
+        for exploration, envs, per_batch, compiled in app_variants:
             cfg = default_config(
-                f"exploration={exploration}", f"env.num_envs={envs}", f"collector.frames_per_batch={per_batch}", f"train.max_frames={frames}"
+                f"exploration={exploration}",
+                f"env.num_envs={envs}",
+                f"collector.frames_per_batch={per_batch}",
+                f"train.max_frames={frames}",
+                f"compile={compiled}",
             )
-            app[exploration, envs, per_batch].append(training_frames_per_s(cfg))
-            reference = plain_config_of(cfg)
-            plain[exploration, envs, per_batch].append(run_plain_reference(reference)["frames_per_s"])
+            app[exploration, envs, per_batch, compiled].append(training_frames_per_s(cfg))
+            if not compiled:
+                plain[exploration, envs, per_batch].append(run_plain_reference(plain_config_of(cfg))["frames_per_s"])
     results = []
-    for exploration, envs, per_batch in sorted(variants):
+    for exploration, envs, per_batch, compiled in app_variants:
         name = f"{exploration}, N={envs}"
-        app_fps, plain_fps = statistics.median(app[exploration, envs, per_batch]), statistics.median(plain[exploration, envs, per_batch])
+        app_fps = statistics.median(app[exploration, envs, per_batch, compiled])
+        plain_fps = statistics.median(plain[exploration, envs, per_batch])
+        loop = "train(cfg), compile=true" if compiled else "train(cfg)"
+        if not compiled:
+            results.append(Measurement("reference", f"{name}: plain PyTorch reference", plain_fps, "frames/s"))
         results += [
-            Measurement("reference", f"{name}: train(cfg)", app_fps, "frames/s"),
-            Measurement("reference", f"{name}: plain PyTorch reference", plain_fps, "frames/s"),
-            Measurement("reference", f"{name}: train(cfg) / plain", app_fps / plain_fps, "x"),
+            Measurement("reference", f"{name}: {loop}", app_fps, "frames/s"),
+            Measurement("reference", f"{name}: {loop} / plain", app_fps / plain_fps, "x"),
         ]
     return results
 
