@@ -69,6 +69,10 @@ from torchrl_mbe.app.run import Progress
 RESULTS_DIR = Path(__file__).parent / "results"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 TRAIN_SCRIPT = Path(__file__).resolve().parents[1] / "train.py"
+LOOP_ALONE = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000", "train.stop_when_solved=false")
+"""Overrides that leave the training loop alone: no logging, evaluation or early stop."""
+
+
 PAPER_LOOP = (
     "experiment=paper_mountaincar",
     "logger=none",
@@ -317,10 +321,6 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
     return results
 
 
-LOOP_ALONE = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000", "train.stop_when_solved=false")
-"""Overrides that leave the training loop alone: no logging, evaluation or early stop."""
-
-
 def default_config(*overrides: str) -> DictConfig:
     """The app's default config with the loop alone (:data:`LOOP_ALONE`), and ``overrides``."""
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
@@ -467,7 +467,8 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     for agent in agents.values():
         fit_q_input_norm(agent, buffer)
         agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
-    plain = PlainAgent(plain_config_of(cfg), obs_dim=2, num_actions=3, rng=np.random.default_rng(0))
+    observation_size, num_actions = env.observation_spec_unbatched["observation"].shape[-1], env.action_spec_unbatched.space.n
+    plain = PlainAgent(plain_config_of(cfg), observation_size, num_actions, rng=np.random.default_rng(0))
     plain_buffer = plain_buffer_of(buffer, cfg.algo.gamma)
     parts = {}
     for name, agent in agents.items():
