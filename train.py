@@ -12,7 +12,7 @@ import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
-from torchrl_mbe.app import ConfigError, summary_line, train
+from torchrl_mbe.app import ConfigError, register_configs, summary_line, train
 
 log = logging.getLogger("train")
 
@@ -29,4 +29,5 @@ def main(cfg: DictConfig) -> float | None:
 
 
 if __name__ == "__main__":
+    register_configs()  # conf/config.yaml extends the schema's base_config
     main()

@@ -27,7 +27,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from types import SimpleNamespace
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -53,18 +52,10 @@ from plain_reference import PlainConfig
 from plain_reference import ReplayBuffer as PlainReplayBuffer
 from plain_reference import run as run_plain_reference
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
-from torchrl_mbe.app import train
+from torchrl_mbe.app import register_configs, train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
-from torchrl_mbe.app.dqn import (
-    SUCCESSOR_KEY,
-    ReplayTransitions,
-    check_dynamics_on_new_data,
-    fit_q_input_norm,
-    make_replay_buffer,
-    update_dynamics,
-    update_q,
-)
-from torchrl_mbe.app.run import Progress
+from torchrl_mbe.app.dqn import fit_q_input_norm, update_q
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, ReplayTransitions, make_replay_buffer
 
 RESULTS_DIR = Path(__file__).parent / "results"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -262,6 +253,7 @@ def bench_collection(budget: Budget) -> list[Measurement]:
 
 def paper_config(*overrides: str) -> DictConfig:
     """The app's config (``conf/``) with :data:`PAPER_LOOP` and then ``overrides`` applied."""
+    register_configs()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose("config", overrides=[*PAPER_LOOP, *overrides])
 
@@ -323,6 +315,7 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
 
 def default_config(*overrides: str) -> DictConfig:
     """The app's default config with the loop alone (:data:`LOOP_ALONE`), and ``overrides``."""
+    register_configs()
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         return compose("config", overrides=[*LOOP_ALONE, *overrides])
 
@@ -415,28 +408,25 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     egreedy_agent = build_agent(paper_config("algo.eps_end=1.0", "exploration=egreedy"), env)
     collectors = {
         name: Collector(make_env("mountaincar", seed=0), policy, frames_per_batch=1, total_frames=-1)
-        for name, policy in (("gaussian", agent.policy), ("egreedy", egreedy_agent.policy), ("random", None))
+        for name, policy in (("gaussian", agent.explorer.policy), ("egreedy", egreedy_agent.explorer.policy), ("random", None))
     }
     steps = {f"collector step, {name} policy": functools.partial(next, iter(c)) for name, c in collectors.items()}
     buffer = make_replay_buffer(cfg.buffer, cfg.device)
     transitions = ReplayTransitions(1, cfg.algo.gamma)
     for _ in range(300):
         buffer.extend(transitions(steps["collector step, gaussian policy"]()))
-    agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
+    agent.explorer.training.model.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
     frame = steps["collector step, gaussian policy"]().reshape(-1).clone()
     transition = transitions(frame)
     q_batch = buffer.sample(cfg.algo.batch_size)
-    run = SimpleNamespace(progress=Progress())  # the part of a Run the dynamics check reads
     parts = {
         **steps,
         "store the frame (buffer.extend)": functools.partial(buffer.extend, transition),
-        "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer, cfg.algo.batch_size),
+        "Q update (sample 16, DQNLoss, Adam, HardUpdate)": functools.partial(update_q, agent, buffer),
         "  of which: buffer.sample(16)": functools.partial(buffer.sample, cfg.algo.batch_size),
         "  of which: DQNLoss forward on 16": functools.partial(agent.q_loss, q_batch),
-        "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(
-            update_dynamics, agent, buffer, cfg.dynamics.batch_size
-        ),
-        "dynamics error on the new frame": functools.partial(check_dynamics_on_new_data, agent, frame, run),
+        "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(agent.explorer.training.update, buffer),
+        "dynamics error on the new frame": functools.partial(agent.explorer.observe, frame),
     }
     timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     for collector in collectors.values():
@@ -458,7 +448,7 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     agents = {"eager": build_agent(cfg, env), "compiled": build_agent(default_config("compile=true"), env)}
     buffer = make_replay_buffer(cfg.buffer, cfg.device)
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma)
-    collector = Collector(env, agents["eager"].policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=2560)
+    collector = Collector(env, agents["eager"].explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=2560)
     for batch in collector:
         stored = transitions(batch)
         if stored is not None:
@@ -466,14 +456,14 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     collector.shutdown()
     for agent in agents.values():
         fit_q_input_norm(agent, buffer)
-        agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
+        agent.explorer.training.model.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
     observation_size, num_actions = env.observation_spec_unbatched["observation"].shape[-1], env.action_spec_unbatched.space.n
     plain = PlainAgent(plain_config_of(cfg), observation_size, num_actions, rng=np.random.default_rng(0))
     plain_buffer = plain_buffer_of(buffer, cfg.algo.gamma)
     parts = {}
     for name, agent in agents.items():
-        parts[f"Q update, train(cfg) {name}"] = functools.partial(update_q, agent, buffer, cfg.algo.batch_size)
-        parts[f"dynamics update, train(cfg) {name}"] = functools.partial(update_dynamics, agent, buffer, cfg.dynamics.batch_size)
+        parts[f"Q update, train(cfg) {name}"] = functools.partial(update_q, agent, buffer)
+        parts[f"dynamics update, train(cfg) {name}"] = functools.partial(agent.explorer.training.update, buffer)
     parts["Q update, plain reference"] = functools.partial(plain.update_q, plain_buffer)
     parts["dynamics update, plain reference"] = functools.partial(plain.update_dynamics, plain_buffer)
     parts["  of which: buffer.sample(256), train(cfg)"] = functools.partial(buffer.sample, cfg.algo.batch_size)

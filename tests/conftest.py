@@ -11,10 +11,11 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 
-import torchrl_mbe.app  # noqa: F401  (registers the config schema)
+from torchrl_mbe.app import register_configs
 
 os.environ.setdefault("WANDB_MODE", "disabled")
 torch.set_num_threads(1)  # tiny networks: one thread is fastest and immune to a busy machine
+register_configs()  # the fixtures compose conf/, which extends the schema
 
 
 @pytest.fixture(autouse=True)

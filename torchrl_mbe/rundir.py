@@ -28,7 +28,10 @@ __all__ = [
     "TABLES",
     "SUMMARY_FIELDS",
     "EXPLORATION_PREFIX",
+    "UPDATE_COUNTERS",
     "table_file",
+    "is_int",
+    "is_number",
 ]
 
 SUMMARY = "summary.json"
@@ -44,6 +47,9 @@ TABLES: dict[str, tuple[str, ...]] = {
 }
 """The CSV tables of a run and their columns."""
 
+UPDATE_COUNTERS = ("q_updates", "dynamics_updates")
+"""The summary's counts of gradient updates, per model; 0 for a model the algorithm does not have."""
+
 EXPLORATION_PREFIX = "explore:"
 """Methods named ``explore:<explorer>`` are exploration-only runs (the Q-network never learns)."""
 
@@ -53,11 +59,13 @@ def table_file(table: str) -> str:
     return f"{table}.csv"
 
 
-def _is_number(value: Any) -> bool:
+def is_number(value: Any) -> bool:
+    """Whether ``value`` is an int or float (a bool is neither), as JSON and YAML numbers are read."""
     return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
-def _is_int(value: Any) -> bool:
+def is_int(value: Any) -> bool:
+    """Whether ``value`` is an int (a bool is not)."""
     return isinstance(value, int) and not isinstance(value, bool)
 
 
@@ -73,24 +81,24 @@ SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
     # name: (check, what it must be, required by the report)
     "env": (_text, "a non-empty string", True),
     "method": (_text, "a non-empty string", True),
-    "seed": (_is_int, "an integer", True),
-    "solved_threshold": (_optional(_is_number), "a number or null", True),
+    "seed": (is_int, "an integer", True),
+    "solved_threshold": (_optional(is_number), "a number or null", True),
     "tag": (_text, "a non-empty string", False),
     "config_id": (_text, "a non-empty string", False),
-    "frames": (_is_int, "an integer", False),
-    "episodes": (_is_int, "an integer", False),
-    "q_updates": (_is_int, "an integer", False),
-    "dynamics_updates": (_is_int, "an integer", False),
-    "wall_time_s": (_is_number, "a number", False),
-    "frames_per_s": (_is_number, "a number", False),
-    "first_success_episode": (_optional(_is_int), "an integer or null", False),
-    "final_eval_return": (_optional(_is_number), "a number or null", False),
-    "final_eval_success_rate": (_optional(_is_number), "a number or null", False),
-    "best_eval_return": (_optional(_is_number), "a number or null", False),
-    "best_eval_frames": (_optional(_is_int), "an integer or null", False),
+    "frames": (is_int, "an integer", False),
+    "episodes": (is_int, "an integer", False),
+    "q_updates": (is_int, "an integer", False),
+    "dynamics_updates": (is_int, "an integer", False),
+    "wall_time_s": (is_number, "a number", False),
+    "frames_per_s": (is_number, "a number", False),
+    "first_success_episode": (_optional(is_int), "an integer or null", False),
+    "final_eval_return": (_optional(is_number), "a number or null", False),
+    "final_eval_success_rate": (_optional(is_number), "a number or null", False),
+    "best_eval_return": (_optional(is_number), "a number or null", False),
+    "best_eval_frames": (_optional(is_int), "an integer or null", False),
     "solved": (_optional(lambda v: isinstance(v, bool)), "true, false or null", False),
-    "solved_at_frames": (_optional(_is_int), "an integer or null", False),
-    "solved_at_wall_time_s": (_optional(_is_number), "a number or null", False),
+    "solved_at_frames": (_optional(is_int), "an integer or null", False),
+    "solved_at_wall_time_s": (_optional(is_number), "a number or null", False),
 }
 """Every field of ``summary.json``. ``tag`` and ``config_id`` (a fingerprint of every
 setting that shapes the result except the seed) say which experiment a run belongs

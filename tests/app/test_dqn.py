@@ -4,7 +4,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from torchrl_mbe.app.dqn import SUCCESSOR_KEY, ReplayTransitions
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, ReplayTransitions
 
 
 def trajectory(end: str) -> TensorDict:
@@ -64,21 +64,20 @@ def test_rnd_adds_its_intrinsic_reward_to_what_the_q_network_learns_and_its_pred
     from torchrl.collectors import Collector
     from torchrl.objectives import RNDLoss
 
-    from torchrl_mbe.app.dqn import update_rnd
-
     _, env, agent = build_agent(compose_config, "exploration=rnd", "exploration.intrinsic_coef=0.5")
-    batch = next(iter(Collector(env, agent.policy, frames_per_batch=64, total_frames=-1)))
+    rnd = agent.explorer
+    batch = next(iter(Collector(env, rnd.policy, frames_per_batch=64, total_frames=-1)))
     intrinsic = batch["next", "intrinsic_reward"]
     assert intrinsic.shape == batch["next", "reward"].shape and (intrinsic > 0).all()
-    stored = ReplayTransitions(n_steps=1, gamma=0.99, intrinsic_coef=agent.intrinsic_coef)(batch)
+    stored = ReplayTransitions(n_steps=1, gamma=0.99, intrinsic_coef=rnd.intrinsic_coef)(batch)
     assert torch.allclose(stored["next", "reward"], (batch["next", "reward"] + 0.5 * intrinsic).reshape(-1, 1))
     observations = stored.select(("next", "observation"))
-    whole_batch_loss = RNDLoss(agent.rnd_loss.predictor_network, agent.rnd_loss.target_network, obs_rms=agent.rnd.obs_rms, update_fraction=1.0)
+    whole_batch_loss = RNDLoss(rnd.loss.predictor_network, rnd.loss.target_network, obs_rms=rnd.rnd.obs_rms, update_fraction=1.0)
     error = lambda: whole_batch_loss(observations)["loss_predictor"].item()  # noqa: E731
     before = error()
     for _ in range(100):
-        update_rnd(agent, observations)
-    assert agent.rnd_loss.obs_rms is agent.rnd.obs_rms  # the loss normalizes as the transform does
+        rnd.after_q_update(observations)
+    assert rnd.loss.obs_rms is rnd.rnd.obs_rms  # the loss normalizes as the transform does
     assert error() < 0.5 * before  # visited states become familiar: their intrinsic reward falls
 
 
@@ -86,10 +85,11 @@ def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compos
     from tensordict import TensorDict
     from torchrl.envs import ExplorationType, set_exploration_type
 
-    from torchrl_mbe.app.dqn import make_replay_buffer, update_q
+    from torchrl_mbe.app.dqn import update_q
+    from torchrl_mbe.app.replay import make_replay_buffer
 
     cfg, env, agent = build_agent(compose_config, "exploration=noisy")
-    assert agent.policy is agent.actor and agent.explorer is None  # no eps: the noise explores
+    assert agent.explorer.policy is agent.actor and agent.eps == 0.0  # no eps: the noise explores
     states = TensorDict({"observation": torch.randn(256, 2) * 0.3}, [256])
     act = lambda: agent.actor(states.clone())["action"].argmax(-1)  # noqa: E731
     with set_exploration_type(ExplorationType.DETERMINISTIC):
@@ -102,7 +102,7 @@ def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compos
     sigma = noise_scale().detach().clone()
     with set_exploration_type(ExplorationType.RANDOM):
         noisy = act()
-        update_q(agent, buffer, 32)  # resamples the noise
+        update_q(agent, buffer)  # resamples the noise
         resampled = act()
     assert not torch.equal(noisy, greedy) and not torch.equal(noisy, resampled)
     assert not torch.equal(sigma, noise_scale())  # the noise scale learns: the loss samples the noise
@@ -111,22 +111,23 @@ def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compos
 def test_compiled_updates_take_the_same_steps_as_eager_ones_and_are_traced_once(compose_config):
     from torchrl.envs.utils import RandomPolicy
 
-    from torchrl_mbe.app.dqn import make_replay_buffer, update_dynamics, update_q
+    from torchrl_mbe.app.dqn import update_q
+    from torchrl_mbe.app.replay import make_replay_buffer
 
     torch.manual_seed(0)
-    cfg, env, eager = build_agent(compose_config)
+    cfg, env, eager = build_agent(compose_config, "algo.batch_size=32", "dynamics.batch_size=32")
     torch.manual_seed(0)
-    _, _, compiled = build_agent(compose_config, "compile=true")
+    _, _, compiled = build_agent(compose_config, "algo.batch_size=32", "dynamics.batch_size=32", "compile=true")
     buffer = make_replay_buffer(cfg.buffer, "cpu")
     buffer.extend(ReplayTransitions(1, 0.99)(env.rollout(64, RandomPolicy(env.action_spec), break_when_any_done=False)))
     for agent in (eager, compiled):
-        agent.dynamics_loss.dynamics.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
+        agent.explorer.training.model.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
     graphs = []
     for step in range(3):
         torch.manual_seed(step)
-        eager_losses = update_q(eager, buffer, 32)["loss_q"], update_dynamics(eager, buffer, 32)
+        eager_losses = update_q(eager, buffer)["loss_q"], eager.explorer.training.update(buffer)
         torch.manual_seed(step)
-        compiled_losses = update_q(compiled, buffer, 32)["loss_q"], update_dynamics(compiled, buffer, 32)
+        compiled_losses = update_q(compiled, buffer)["loss_q"], compiled.explorer.training.update(buffer)
         assert compiled_losses == pytest.approx(eager_losses, rel=1e-4)
         graphs.append(torch._dynamo.utils.counters["stats"]["unique_graphs"])
     assert graphs[0] > 0 and graphs[-1] == graphs[0]  # traced at the first step only

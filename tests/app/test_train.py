@@ -207,7 +207,7 @@ def test_resume_of_a_finished_run_changes_nothing_and_a_larger_budget_continues(
 def test_csv_headers_are_on_disk_before_the_first_row(tmp_path, compose_config, monkeypatch):
     seen = {}
 
-    def look_at_the_files_at_the_first_batch(run, batch):
+    def look_at_the_files_at_the_first_batch(run, batch, **kwargs):
         seen.update({name: (tmp_path / f"{name}.csv").read_text() for name in ("episodes", "evaluations", "updates")})
         raise KeyboardInterrupt  # as a SIGKILL would, before anything else is written
 
@@ -268,7 +268,7 @@ def test_checkpoints_of_version_0_1_are_refused_with_one_line(tmp_path, compose_
     checkpoint = torch.load(tmp_path / CHECKPOINT, weights_only=False)
     del checkpoint["format"]
     torch.save(checkpoint, tmp_path / CHECKPOINT)
-    with pytest.raises(ConfigError, match="checkpoint format 1 .torchrl-mbe 0.1.0 wrote 1.; this version reads format 2"):
+    with pytest.raises(ConfigError, match=r"checkpoint format 1 \(torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2\); this version reads format 3 only"):
         train(compose_config("train.max_frames=240", "resume=true"), tmp_path)
 
 

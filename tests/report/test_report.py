@@ -169,7 +169,7 @@ class TestReport:
         ]
         random = table_row(mountaincar, "### Exploration", "explore:random")
         assert random[5] == "1.5% ± 0.5% [1.0%, 2.0%]"
-        assert "explore:random seed 1 (2.0%), explore:gaussian seed 0 (100.0%)" in mountaincar  # paper order
+        assert "explore:gaussian seed 0 (100.0%), explore:random seed 1 (2.0%)" in mountaincar  # method_key order
         lunarlander = env_section(results, "LunarLander-v3")
         assert "coverage x-velocity x y-velocity | coverage, mean over pairs of 6 dims" in lunarlander
         assert "max position" not in lunarlander and "### Learning" not in lunarlander

@@ -2,8 +2,8 @@
 
 ``train.py`` at the repository root is the thin ``@hydra.main`` wrapper around :func:`train`.
 """
-from torchrl_mbe.app.config import ConfigError, check_config
+from torchrl_mbe.app.config import ConfigError, check_config, register_configs
 from torchrl_mbe.app.run import summary_line
 from torchrl_mbe.app.train import train
 
-__all__ = ["ConfigError", "check_config", "summary_line", "train"]
+__all__ = ["ConfigError", "check_config", "register_configs", "summary_line", "train"]

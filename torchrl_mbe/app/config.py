@@ -4,7 +4,8 @@ The schema is a tree of dataclasses (Hydra structured configs). :func:`register_
 puts it in Hydra's ``ConfigStore``: the root as ``base_config`` (``conf/config.yaml``
 extends it) and every option of a choice group (``algo``, ``exploration``, ``dynamics``,
 ``buffer``, ``logger``) under its name, so ``exploration=kernel`` selects
-:class:`KernelExploration` with its defaults. Files in ``conf/`` only override values:
+:class:`~torchrl_mbe.app.explorers.KernelExploration` (each explorer's schema lives
+beside it in :mod:`torchrl_mbe.app.explorers`) with its defaults. Files in ``conf/`` only override values:
 ``conf/env/`` holds each environment's settings, ``conf/experiment/`` the presets.
 
 Hydra checks types and key names while composing. :func:`check_config` then checks
@@ -17,7 +18,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
@@ -25,65 +25,34 @@ import torch
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
+from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
+from torchrl_mbe.app.settings import (
+    DISCOUNT,
+    FRACTION,
+    LAYERS,
+    NON_NEGATIVE,
+    NON_NEGATIVE_INT,
+    POSITIVE,
+    POSITIVE_INT,
+    PROBABILITY,
+    ConfigError,
+    one_of,
+    setting,
+)
 from torchrl_mbe.envs.registry import resolve_env_id
+from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
 __all__ = [
     "ConfigError",
     "Config",
     "DQNConfig",
     "ReinforceConfig",
-    "PlanningExploration",
     "check_config",
     "config_differences",
     "config_id",
     "method_name",
     "register_configs",
 ]
-
-
-class ConfigError(ValueError):
-    """A config value the app cannot run with; the message names the key and what is accepted."""
-
-
-@dataclass(frozen=True)
-class Rule:
-    """What a setting accepts: a test and the words that describe it."""
-
-    test: Callable[[Any], bool]
-    accepted: str
-
-    def or_none(self) -> Rule:
-        return Rule(lambda v: v is None or self.test(v), f"{self.accepted}, or null")
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _is_int(value: Any) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
-
-
-POSITIVE_INT = Rule(lambda v: _is_int(v) and v >= 1, "a positive integer")
-NON_NEGATIVE_INT = Rule(lambda v: _is_int(v) and v >= 0, "an integer >= 0")
-NON_NEGATIVE = Rule(lambda v: _is_number(v) and v >= 0, "a number >= 0")
-POSITIVE = Rule(lambda v: _is_number(v) and v > 0, "a number > 0")
-PROBABILITY = Rule(lambda v: _is_number(v) and 0 <= v <= 1, "a number in [0, 1]")
-DISCOUNT = Rule(lambda v: _is_number(v) and 0 <= v <= 1, "a discount in [0, 1]")
-FRACTION = Rule(lambda v: _is_number(v) and 0 < v <= 1, "a number in (0, 1]")
-LAYERS = Rule(lambda v: len(v) > 0 and all(_is_int(c) and c >= 1 for c in v), "a non-empty list of positive layer sizes")
-ANY = Rule(lambda v: True, "anything")
-
-
-def one_of(*options: str) -> Rule:
-    return Rule(lambda v: v in options, "one of " + ", ".join(options))
-
-
-def setting(default: Any, rule: Rule = ANY) -> Any:
-    """A dataclass field with its default and the :class:`Rule` its values must pass."""
-    if isinstance(default, list):
-        return field(default_factory=lambda: list(default), metadata={"rule": rule})
-    return field(default=default, metadata={"rule": rule})
 
 
 @dataclass
@@ -129,83 +98,6 @@ class ReinforceConfig:
     lr: float = setting(0.02, POSITIVE)
     weight_std: float = setting(0.3, NON_NEGATIVE)  # every layer's weights start N(0, weight_std)
     bias_init: float = 0.1
-
-
-@dataclass
-class ExplorationConfig:
-    name: str = MISSING
-
-
-@dataclass
-class PlanningExploration(ExplorationConfig):
-    """Explorers whose exploring steps plan with a dynamics model towards the rarest predicted state."""
-
-    window: int = setting(50, Rule(lambda v: _is_int(v) and v >= 2, "an integer >= 2 (the paper uses 50)"))
-    horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
-    model_error_threshold: Optional[float] = setting(None, NON_NEGATIVE.or_none())  # random until the model is this good
-
-
-@dataclass
-class GaussianExploration(PlanningExploration):
-    name: str = "gaussian"  # the paper: Gaussian fitted to the window
-
-
-@dataclass
-class KernelExploration(PlanningExploration):
-    name: str = "kernel"  # Oh et al. (2015): Gaussian-kernel similarity to the window
-    bandwidth: float = setting(0.1, POSITIVE)
-
-
-@dataclass
-class DiagonalExploration(PlanningExploration):
-    name: str = "diagonal"  # a Gaussian without correlations
-
-
-@dataclass
-class KNearestExploration(PlanningExploration):
-    name: str = "knn"  # mean scaled distance to the k nearest states of the window
-    k: int = setting(5, POSITIVE_INT)
-
-
-@dataclass
-class KernelDensityExploration(PlanningExploration):
-    name: str = "kde"  # kernel density estimate, Scott's-rule bandwidth per dimension
-    window: int = setting(500, Rule(lambda v: _is_int(v) and v >= 2, "an integer >= 2"))
-
-
-@dataclass
-class RNDExploration(ExplorationConfig):
-    """Random network distillation (TorchRL's RNDTransform and RNDLoss): an intrinsic reward, e-greedy acting."""
-
-    name: str = "rnd"
-    intrinsic_coef: float = setting(0.5, NON_NEGATIVE)  # the reward learned from: extrinsic + coef * intrinsic
-    num_cells: list[int] = setting([64, 64], LAYERS)  # target and predictor networks
-    embedding_size: int = setting(64, POSITIVE_INT)
-    lr: float = setting(1e-3, POSITIVE)  # predictor's Adam; one step per Q update, on the Q update's batch
-
-
-@dataclass
-class NoisyExploration(ExplorationConfig):
-    """NoisyNet (TorchRL's NoisyLinear layers in the Q-network): learned parameter noise, no eps."""
-
-    name: str = "noisy"
-    std_init: float = setting(0.5, POSITIVE)  # initial noise scale of every layer
-
-
-EXPLORERS: dict[str, type[ExplorationConfig]] = {
-    "gaussian": GaussianExploration,
-    "kernel": KernelExploration,
-    "diagonal": DiagonalExploration,
-    "knn": KNearestExploration,
-    "kde": KernelDensityExploration,
-    "rnd": RNDExploration,
-    "noisy": NoisyExploration,
-    "egreedy": dataclasses.make_dataclass("EGreedyExploration", [("name", str, "egreedy")], bases=(ExplorationConfig,)),
-    "none": dataclasses.make_dataclass("NoExploration", [("name", str, "none")], bases=(ExplorationConfig,)),
-}
-"""Every ``exploration=`` option: the planning ones (gaussian, kernel, diagonal, knn, kde),
-``rnd`` and ``noisy`` (TorchRL's explorers), ``egreedy`` (random exploring actions) and
-``none`` (never explores)."""
 
 
 @dataclass
@@ -262,7 +154,7 @@ class Config:
 
     env: EnvConfig = field(default_factory=EnvConfig)
     algo: Any = MISSING  # DQNConfig or ReinforceConfig
-    exploration: Any = MISSING  # an EXPLORERS entry
+    exploration: Any = MISSING  # the schema of an explorer (torchrl_mbe.app.explorers.EXPLORERS)
     dynamics: DynamicsConfig = field(default_factory=DynamicsConfig)
     buffer: BufferConfig = field(default_factory=BufferConfig)
     collector: CollectorConfig = field(default_factory=CollectorConfig)
@@ -279,19 +171,25 @@ class Config:
 
 
 def register_configs() -> None:
-    """Stores the schema and every group option in Hydra's ``ConfigStore`` (idempotent)."""
+    """Stores the schema and every group option in Hydra's ``ConfigStore``, and the ``method_name`` resolver (idempotent).
+
+    ``train.py`` and :func:`~torchrl_mbe.app.train` call it; so must anything
+    that composes ``conf/`` itself (tests, benchmarks).
+    """
     store = ConfigStore.instance()
     store.store(name="base_config", node=Config)
     store.store(group="algo", name="dqn", node=DQNConfig)
     store.store(group="algo", name="reinforce", node=ReinforceConfig)
-    for name, schema in EXPLORERS.items():
-        store.store(group="exploration", name=name, node=schema)
+    for name, explorer in EXPLORERS.items():
+        store.store(group="exploration", name=name, node=explorer.schema)
     for name in ("mlp", "oracle"):
         store.store(group="dynamics", name=name, node=DynamicsConfig(name=name))
     for name in ("uniform", "prioritized"):
         store.store(group="buffer", name=name, node=BufferConfig(name=name))
     for backend in ("csv", "wandb", "none"):
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
+    if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
+        OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -299,12 +197,13 @@ def check_config(cfg: DictConfig) -> None:
 
     Examples:
         >>> from omegaconf import OmegaConf
-        >>> from torchrl_mbe.app.config import Config, DQNConfig, GaussianExploration, check_config
+        >>> from torchrl_mbe.app.config import Config, DQNConfig, check_config
+        >>> from torchrl_mbe.app.explorers import GaussianExploration
         >>> cfg = OmegaConf.structured(Config(algo=DQNConfig(gamma=1.5), exploration=GaussianExploration()))
         >>> check_config(cfg)
         Traceback (most recent call last):
         ...
-        torchrl_mbe.app.config.ConfigError: algo.gamma=1.5: expected a discount in [0, 1].
+        torchrl_mbe.app.settings.ConfigError: algo.gamma=1.5: expected a discount in [0, 1].
     """
     config = OmegaConf.to_object(cfg)
     _check_fields(config, "")
@@ -338,7 +237,7 @@ def _check_together(config: Config) -> None:
             raise ConfigError(f"algo.eps_end={algo.eps_end}: expected at most algo.eps_init={algo.eps_init}.")
         if algo.eps_schedule == "exponential" and algo.eps_end == 0:
             raise ConfigError("algo.eps_end=0: the exponential schedule decays multiplicatively; expected eps_end > 0.")
-    if isinstance(config.exploration, PlanningExploration) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
+    if is_planning(config) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
         raise ConfigError(f"dynamics=oracle: the oracle exists for MountainCar-v0 only, not {config.env.name}.")
 
 
@@ -365,17 +264,14 @@ def method_name(cfg: DictConfig) -> str:
     """
     if cfg.algo.name == "reinforce":
         return "reinforce"
-    explorer = cfg.exploration.name
-    if is_planning(cfg) and cfg.dynamics.name == "oracle":
-        explorer = f"{explorer}-oracle" if explorer != "gaussian" else "oracle"
-    if cfg.algo.updates_per_frame == 0:
-        return "explore:" + ("random" if explorer == "egreedy" else explorer)
-    return f"{cfg.algo.name}+{explorer}"
+    learns = cfg.algo.updates_per_frame > 0
+    label = explorer_of(cfg.exploration).method_label(cfg, learns=learns)
+    return f"{cfg.algo.name}+{label}" if learns else EXPLORATION_PREFIX + label
 
 
-def is_planning(cfg: DictConfig) -> bool:
+def is_planning(cfg: DictConfig | Config) -> bool:
     """Whether the configured explorer plans with a dynamics model."""
-    return issubclass(EXPLORERS[cfg.exploration.name], PlanningExploration)
+    return issubclass(explorer_of(cfg.exploration), PlanningExplorer)
 
 
 # Keys a resumed run may change: budgets, evaluation, logging and placement.
@@ -418,7 +314,3 @@ def _flatten(tree: dict, prefix: str = "") -> dict:
             flat[name] = value
     return flat
 
-
-register_configs()
-if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
-    OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))

@@ -48,10 +48,9 @@ from torchrl.modules import OneHotCategorical, ProbabilisticActor
 from torchrl.objectives import ReinforceLoss
 from torchrl.objectives.value.functional import reward2go
 
+from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.run import (
-    GradientStep,
     StopOnInterrupt,
-    adam,
     evaluate_and_checkpoint_if_due,
     finish_run,
     open_run,
@@ -72,7 +71,10 @@ class ReinforceAgent:
     loss: ReinforceLoss
     step: GradientStep  # ReinforceLoss on a whole episode, Adam
     gamma: float
-    eps: float = 0.0  # no eps: the policy's own sampling explores
+
+    def summary_fields(self) -> dict[str, int]:
+        """Nothing beyond the run's own counters: its one policy update per episode is counted as episodes."""
+        return {}
 
     def state_dict(self) -> dict:
         return {"actor": self.actor.state_dict(), "optimizer": self.step.optimizer.state_dict()}

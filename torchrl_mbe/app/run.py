@@ -29,7 +29,7 @@ from tqdm.auto import tqdm
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, reached_goal, resolve_env_id, task_of
-from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, VISITED_EPISODES, VISITED_STATES
+from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
     "Agent",
@@ -43,16 +43,15 @@ __all__ = [
     "finish_run",
     "evaluate",
     "play_episode",
-    "GradientStep",
-    "adam",
+    "record_updates",
     "CHECKPOINT_FORMAT",
 ]
 
 log = logging.getLogger(__name__)
 tqdm.set_lock(threading.RLock())  # tqdm's default lock is a multiprocessing semaphore, left behind by a killed run
 
-CHECKPOINT_FORMAT = 2
-"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1)."""
+CHECKPOINT_FORMAT = 3
+"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2)."""
 
 
 class Agent(Protocol):
@@ -60,10 +59,9 @@ class Agent(Protocol):
 
     actor: TensorDictModuleBase  # the greedy actor (evaluation, best policy)
 
-    @property
-    def eps(self) -> float: ...
+    def summary_fields(self) -> dict[str, int]: ...  # its update counters (rundir.UPDATE_COUNTERS)
 
-    def state_dict(self) -> dict: ...
+    def state_dict(self) -> dict: ...  # everything it trains and counts
 
     def load_state_dict(self, state: dict) -> None: ...
 
@@ -78,23 +76,16 @@ class RunFinished(Exception):
 
 @dataclass
 class Progress:
-    """Counters that a checkpoint restores."""
+    """The run's counters, shared by every algorithm, that a checkpoint restores (an agent keeps its own)."""
 
     frames: int = 0
     episodes: int = 0
-    q_updates: int = 0
-    dynamics_updates: int = 0
-    q_update_credit: float = 0.0
-    dynamics_update_credit: float = 0.0
     first_success_episode: int | None = None
     wall_time_s: float = 0.0
-    dynamics_val_error: float | None = None
-    last_loss_dynamics: float | None = None
     best_eval_return: float | None = None
     best_eval_frames: int | None = None
     solved_at_frames: int | None = None
     solved_at_wall_time_s: float | None = None
-    visited: list = field(default_factory=list)  # (observations, episode ids) per batch, if recorded
 
 
 @dataclass
@@ -113,6 +104,7 @@ class Run:
     replay_buffer: Any = None  # saved with the checkpoint when the algorithm has one
     started: float = field(default_factory=time.perf_counter)
     confirmation: tuple[int, dict] | None = None  # (frames, result) of the evaluation that confirmed "solved"
+    visited: list = field(default_factory=list)  # (observations, episode ids) per batch, with train.save_visited_states
 
     @property
     def solved_threshold(self) -> float | None:
@@ -137,10 +129,15 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
     """
     env_id = resolve_env_id(cfg.env.name)
     eval_env = make_env(cfg.env.name, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000, device=cfg.device)
-    progress = _start_or_resume(cfg, run_dir, agent, replay_buffer)
+    if not cfg.resume:
+        _refuse_to_overwrite(run_dir)
+    checkpoint = _read_checkpoint(cfg, run_dir) if cfg.resume else None
+    progress = _restore(checkpoint, agent, replay_buffer) if checkpoint is not None else Progress()
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
     bar = _progress_bar(cfg, progress)
     run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar, replay_buffer)
+    if checkpoint is not None and checkpoint["visited"] is not None:
+        run.visited = checkpoint["visited"]
     run.started -= progress.wall_time_s
     summary = _summary_of_this_checkpoint(run_dir, progress) if cfg.resume else None
     if summary is not None and run.budget_spent():
@@ -171,15 +168,17 @@ def _progress_bar(cfg: DictConfig, progress: Progress) -> tqdm:
     )
 
 
-def _start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, replay_buffer: Any) -> Progress:
+def _refuse_to_overwrite(run_dir: Path) -> None:
+    if (run_dir / CHECKPOINT).exists():
+        raise ConfigError(
+            f"{run_dir} already holds a run. Pass resume=true to continue it, "
+            "or choose another directory (hydra.run.dir=... or another tag/seed)."
+        )
+
+
+def _read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
+    """The checkpoint to resume from, refused with one line if it is missing, unreadable, or of another version or config."""
     checkpoint_path = run_dir / CHECKPOINT
-    if not cfg.resume:
-        if checkpoint_path.exists():
-            raise ConfigError(
-                f"{run_dir} already holds a run. Pass resume=true to continue it, "
-                "or choose another directory (hydra.run.dir=... or another tag/seed)."
-            )
-        return Progress()
     if not checkpoint_path.exists():
         raise ConfigError(f"resume=true but {checkpoint_path} does not exist: nothing to resume.")
     try:
@@ -189,20 +188,25 @@ def _start_or_resume(cfg: DictConfig, run_dir: Path, agent: Agent, replay_buffer
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         found = checkpoint.get("format", 1) if isinstance(checkpoint, dict) else "unknown"
         raise ConfigError(
-            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1); this version reads "
-            f"format {CHECKPOINT_FORMAT} only. Start a new run in another directory."
+            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2); this version "
+            f"reads format {CHECKPOINT_FORMAT} only. Start a new run in another directory."
         )
     differences = config_differences(checkpoint["config"], cfg)
     if differences:
         raise ConfigError(
             f"The checkpoint in {run_dir} was made with another config; differing keys: " + "; ".join(differences)
         )
+    return checkpoint
+
+
+def _restore(checkpoint: dict, agent: Agent, replay_buffer: Any) -> Progress:
     agent.load_state_dict(checkpoint["agent"])
     if replay_buffer is not None:
         replay_buffer.load_state_dict(checkpoint["replay_buffer"])
     torch.set_rng_state(checkpoint["torch_rng"])
-    log.info("Resumed %s at %d frames, %d episodes", run_dir, checkpoint["progress"]["frames"], checkpoint["progress"]["episodes"])
-    return Progress(**checkpoint["progress"])
+    progress = Progress(**checkpoint["progress"])
+    log.info("Resumed at %d frames, %d episodes", progress.frames, progress.episodes)
+    return progress
 
 
 class StopOnInterrupt:
@@ -229,17 +233,24 @@ class StopOnInterrupt:
             signal.signal(signal.SIGINT, self._previous)
 
 
-def record_frames(run: Run, batch: TensorDictBase) -> None:
+def record_frames(run: Run, batch: TensorDictBase, *, eps: float = 0.0) -> None:
     """Counts the collected ``batch`` (``(time,)`` or ``(envs, time)``), logs the episodes that ended in it
-    (with the eps that acted) and records visited states if asked."""
+    (with ``eps``, the exploration rate that acted) and records visited states if asked."""
     progress = run.progress
     progress.frames += batch.numel()
     progress.wall_time_s = time.perf_counter() - run.started
     if run.cfg.train.max_frames is not None:  # the bar counts frames (see _progress_bar)
         run.bar.update(batch.numel())
-    _record_episodes(run, batch)
+    _record_episodes(run, batch, eps)
     if run.cfg.train.save_visited_states:
-        _record_visited_states(batch, progress)
+        run.visited.append(_visited_states(batch, progress))
+
+
+def record_updates(run: Run, rows: list[dict]) -> None:
+    """Logs rows of the updates table, each with the throughput so far."""
+    progress = run.progress
+    for row in rows:
+        run.logger.log("updates", {**row, "frames_per_s": progress.frames / max(progress.wall_time_s, 1e-9)})
 
 
 def evaluate_and_checkpoint_if_due(run: Run, new_frames: int) -> None:
@@ -251,9 +262,9 @@ def evaluate_and_checkpoint_if_due(run: Run, new_frames: int) -> None:
         save_checkpoint(run)
 
 
-def _record_episodes(run: Run, batch: TensorDictBase) -> None:
+def _record_episodes(run: Run, batch: TensorDictBase, eps: float) -> None:
     """Logs every episode that ended in ``batch`` (up to the episode budget) and advances the progress bar."""
-    progress, eps = run.progress, run.agent.eps
+    progress = run.progress
     for episode in finished_episodes(batch)[: max(run.cfg.train.episodes - progress.episodes, 0)]:
         progress.episodes += 1
         success = reached_goal(run.env_id, episode)
@@ -276,14 +287,14 @@ def _record_episodes(run: Run, batch: TensorDictBase) -> None:
         run.bar.set_postfix(episodes=progress.episodes, frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}")
 
 
-def _record_visited_states(batch: TensorDictBase, progress: Progress) -> None:
+def _visited_states(batch: TensorDictBase, progress: Progress) -> tuple[torch.Tensor, torch.Tensor]:
     """Keeps every state the agent arrived in (``("next", "observation")``, so goal states count) with its 1-based episode."""
     steps = batch.transpose(0, 1) if batch.ndim == 2 else batch
     steps = steps.reshape(-1)
     done = steps["next", "done"].reshape(-1).long()
     ended_before = progress.episodes - int(done.sum())
     episode_ids = ended_before + 1 + torch.cumsum(done, 0) - done
-    progress.visited.append((steps["next", "observation"].cpu(), episode_ids.cpu()))
+    return steps["next", "observation"].cpu(), episode_ids.cpu()
 
 
 def _periodic_evaluation(run: Run) -> None:
@@ -354,66 +365,6 @@ def _log_evaluation(result: dict, run: Run) -> None:
     log.info("eval at %d frames: return %.1f", progress.frames, result["eval_return_mean"])
 
 
-def adam(parameters, lr: float) -> torch.optim.Adam:
-    """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
-
-    The same update as the default per-parameter loop (up to floating-point
-    rounding, so a seed's trajectory differs), in one kernel call instead of a
-    few per parameter.
-    """
-    return torch.optim.Adam(parameters, lr=lr, fused=True)
-
-
-class GradientStep:
-    """One gradient step of a loss: loss and backward (compiled with ``compile=True``), clipping, optimizer step.
-
-    With ``compile``, ``torch.compile`` traces the loss and its backward on the
-    first call (seconds on a CPU) and then runs that graph; if compilation fails,
-    a warning says so and the step runs eagerly from then on. Clipping and the
-    optimizer step stay eager (they break graphs).
-
-    Args:
-        loss (callable): ``loss(batch) -> scalar tensor``.
-        optimizer (torch.optim.Optimizer): steps the parameters the loss depends on.
-        max_grad_norm (float, optional): clips the gradient norm of each parameter group.
-
-    Keyword Args:
-        compile (bool): compile the loss and backward. Defaults to ``False``.
-    """
-
-    def __init__(self, loss, optimizer: torch.optim.Optimizer, max_grad_norm: float | None, *, compile: bool = False) -> None:
-        self.loss = loss
-        self.optimizer = optimizer
-        self.max_grad_norm = max_grad_norm
-        self._loss_and_backward = torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
-
-    def __call__(self, batch: TensorDictBase) -> float:
-        """Takes the step on ``batch`` and returns the loss before it."""
-        self.optimizer.zero_grad(set_to_none=True)
-        loss = self._compiled_or_eager(batch)
-        if self.max_grad_norm is not None:
-            for group in self.optimizer.param_groups:
-                torch.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
-        self.optimizer.step()
-        return loss.item()
-
-    def _eager_loss_and_backward(self, batch: TensorDictBase) -> torch.Tensor:
-        loss = self.loss(batch)
-        loss.backward()
-        return loss.detach()
-
-    def _compiled_or_eager(self, batch: TensorDictBase) -> torch.Tensor:
-        if self._loss_and_backward == self._eager_loss_and_backward:
-            return self._loss_and_backward(batch)
-        try:
-            return self._loss_and_backward(batch)
-        except torch._dynamo.exc.TorchDynamoException as error:  # the compiler, not the loss, failed
-            log.warning("torch.compile failed (%s); this update runs eagerly from now on.", type(error).__name__)
-            self._loss_and_backward = self._eager_loss_and_backward
-            self.optimizer.zero_grad(set_to_none=True)
-            return self._loss_and_backward(batch)
-
-
 def save_checkpoint(run: Run) -> None:
     """Writes the checkpoint atomically (a crash mid-write keeps the previous one)."""
     checkpoint = {
@@ -422,6 +373,7 @@ def save_checkpoint(run: Run) -> None:
         "agent": run.agent.state_dict(),
         "replay_buffer": run.replay_buffer.state_dict() if run.replay_buffer is not None else None,
         "progress": asdict(run.progress),
+        "visited": run.visited if run.cfg.train.save_visited_states else None,
         "torch_rng": torch.get_rng_state(),
     }
     partial = run.run_dir / (CHECKPOINT + ".partial")
@@ -471,8 +423,8 @@ def write_summary(run: Run, final: dict | None) -> dict:
         "config_id": config_id(cfg),
         "frames": progress.frames,
         "episodes": progress.episodes,
-        "q_updates": progress.q_updates,
-        "dynamics_updates": progress.dynamics_updates,
+        **dict.fromkeys(UPDATE_COUNTERS, 0),
+        **run.agent.summary_fields(),
         "wall_time_s": round(progress.wall_time_s, 2),
         "frames_per_s": round(progress.frames / max(progress.wall_time_s, 1e-9), 1),
         "first_success_episode": progress.first_success_episode,
@@ -486,8 +438,8 @@ def write_summary(run: Run, final: dict | None) -> dict:
         "solved_at_wall_time_s": progress.solved_at_wall_time_s,
     }
     (run.run_dir / SUMMARY).write_text(json.dumps(summary, indent=2))
-    if progress.visited:
-        observations, episode_ids = map(torch.cat, zip(*progress.visited))
+    if run.visited:
+        observations, episode_ids = map(torch.cat, zip(*run.visited))
         np.save(run.run_dir / VISITED_STATES, observations.numpy().astype(np.float32))
         np.save(run.run_dir / VISITED_EPISODES, episode_ids.numpy())
     return summary

@@ -7,7 +7,7 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 
-from torchrl_mbe.app.config import check_config
+from torchrl_mbe.app.config import check_config, register_configs
 from torchrl_mbe.app.dqn import train_dqn
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.run import RunFinished
@@ -31,6 +31,7 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         run_dir (path, optional): where CSVs, checkpoints and the summary go;
             defaults to Hydra's output directory.
     """
+    register_configs()  # the method_name resolver, where a launcher runs this job in a fresh process
     check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes

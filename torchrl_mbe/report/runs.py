@@ -231,20 +231,20 @@ def file_stem(env: str) -> str:
 
 
 
-_METHOD_ORDER = (
-    "explore:random", "explore:kernel", "explore:gaussian", "explore:oracle",
-    "dqn+gaussian", "dqn+kernel", "dqn+diagonal", "dqn+kde", "dqn+knn", "dqn+rnd", "dqn+noisy", "dqn+egreedy",
-    "dqn+none", "reinforce",
-)
-"""Methods in the paper's order (baselines beside the proposal); others follow alphabetically."""
-
-
 def method_key(method: str) -> tuple[int, str]:
-    return (_METHOD_ORDER.index(method) if method in _METHOD_ORDER else len(_METHOD_ORDER), method)
+    """Exploration-only methods (``explore:...``) first, then an algorithm with an explorer (``dqn+...``), then the rest; by name within each.
+
+    Examples:
+        >>> from torchrl_mbe.report.runs import method_key
+        >>> sorted(["reinforce", "dqn+noisy", "explore:random", "dqn+diagonal"], key=method_key)
+        ['explore:random', 'dqn+diagonal', 'dqn+noisy', 'reinforce']
+    """
+    kind = 0 if method.startswith(EXPLORATION_PREFIX) else 1 if "+" in method else 2
+    return kind, method
 
 
 def group_runs(runs: Sequence[Run]) -> dict[str, list[Run]]:
-    """Runs of one experiment per group, in :data:`_METHOD_ORDER`, each group's runs sorted by seed.
+    """Runs of one experiment per group, in :func:`method_key` order, each group's runs sorted by seed.
 
     An experiment is a method run with one config (``tag`` and ``config_id``); the
     group is labelled by its method, or ``method [tag config_id]`` when the method

@@ -1,0 +1,484 @@
+"""The explorer registry: every ``exploration=`` option, its config schema and how it is built, in one place.
+
+An explorer is a class here: its ``schema`` (the config dataclass of its
+``exploration=`` option, registered with Hydra by :mod:`torchrl_mbe.app.config`)
+and its :meth:`~Explorer.build`, which returns the explorer with a fixed shape:
+
+* ``policy``: the TensorDictModule the collector runs (the greedy actor plus the exploring rule);
+* ``eps``: the exploration rate now (0 for an explorer without one), annealed by :meth:`~Explorer.anneal`;
+* hooks the DQN loop calls on every explorer alike: :meth:`~Explorer.observe` (fresh
+  frames), :meth:`~Explorer.learn` (its own updates), :meth:`~Explorer.after_q_update`
+  (on the Q update's batch), :meth:`~Explorer.log_fields`, :meth:`~Explorer.summary_fields`
+  and its checkpoint state (:meth:`~Explorer.state_dict`).
+
+The loop never asks which explorer it has. Adding one means adding a class here
+(and its line in :data:`EXPLORERS`); see ``docs/architecture.md``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, Optional
+
+import torch
+from omegaconf import MISSING, DictConfig
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase, TensorDictSequential
+from torchrl.data import ReplayBuffer, TensorSpec
+from torchrl.envs import ExplorationType, TransformedEnv
+from torchrl.envs.transforms import RNDTransform
+from torchrl.modules import MLP, QValueActor, reset_noise
+from torchrl.objectives import DQNLoss, RNDLoss
+
+from torchrl_mbe.app.optim import GradientStep, adam
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, one_step_transitions
+from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
+from torchrl_mbe.envs import MountainCarDynamics
+from torchrl_mbe.modules.dynamics import DynamicsModel
+from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
+from torchrl_mbe.modules import novelty as scorers
+from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.rundir import is_int
+
+__all__ = ["EXPLORERS", "ExplorationConfig", "Explorer", "ExplorerContext", "PlanningExplorer", "explorer_of"]
+
+WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
+
+
+@dataclass
+class ExplorationConfig:
+    """The ``exploration`` group's common part: the option's name."""
+
+    name: str = MISSING
+
+
+@dataclass
+class NoExploration(ExplorationConfig):
+    name: str = "none"  # never explores: the greedy actor alone
+
+
+@dataclass
+class ExplorerContext:
+    """What an explorer is built from: the run's config, the training env and the Q side it explores for."""
+
+    cfg: DictConfig
+    env: TransformedEnv  # the training env (RND appends its transform to it)
+    actor: QValueActor  # the greedy policy
+    q_loss: DQNLoss
+    action_spec: TensorSpec
+    observation_size: int
+    device: torch.device
+
+
+class Explorer:
+    """``exploration=none``: the greedy actor acts alone; the base of every explorer, whose hooks do nothing.
+
+    Subclasses set ``schema`` and override :meth:`build` and the hooks they need.
+    """
+
+    schema: ClassVar[type[ExplorationConfig]] = NoExploration
+    intrinsic_coef: float | None = None  # the Q-network learns reward + intrinsic_coef * ("next", "intrinsic_reward")
+
+    def __init__(self, policy: TensorDictModuleBase) -> None:
+        self.policy = policy
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        return cls(context.actor)
+
+    @classmethod
+    def q_network_noise(cls, exploration: DictConfig) -> float | None:
+        """The initial noise scale of a NoisyNet Q-network this explorer needs, or ``None`` for a plain one."""
+        return None
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        """How reports name runs of this explorer (after ``dqn+`` or ``explore:``)."""
+        return cls.schema.name
+
+    @property
+    def eps(self) -> float:
+        """The exploration rate now."""
+        return 0.0
+
+    def anneal(self, frames: int) -> None:
+        """Advances the eps schedule by ``frames`` frames."""
+
+    def observe(self, batch: TensorDictBase) -> None:
+        """Sees freshly collected frames, before anything learns from them."""
+
+    def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
+        """The explorer's own updates that ``new_frames`` new frames pay for (``frames`` collected in all)."""
+
+    def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
+        """Runs after each Q update on its batch; returns losses to log."""
+        return {}
+
+    def log_fields(self) -> dict[str, float | None]:
+        """Values for the updates table beside the losses."""
+        return {}
+
+    def summary_fields(self) -> dict[str, int]:
+        """Counters for the run's summary."""
+        return {}
+
+    def state_dict(self) -> dict:
+        """What a checkpoint keeps beyond the policy's own state (which travels with the policy)."""
+        return {}
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restores :meth:`state_dict`."""
+
+
+def eps_schedule(algo: DictConfig) -> dict:
+    """The keyword arguments of :class:`~torchrl_mbe.modules.AnnealedEGreedyModule`'s schedule, from ``algo``."""
+    return {
+        "eps_init": algo.eps_init,
+        "eps_end": algo.eps_end,
+        "annealing_num_steps": algo.eps_annealing_frames,
+        "schedule": algo.eps_schedule,
+    }
+
+
+@dataclass
+class EGreedyExploration(ExplorationConfig):
+    name: str = "egreedy"  # uniformly random exploring actions
+
+
+class EGreedyExplorer(Explorer):
+    """``exploration=egreedy``: TorchRL's e-greedy after the actor, eps annealed by the algorithm's schedule."""
+
+    schema = EGreedyExploration
+
+    def __init__(self, policy: TensorDictModuleBase, eps_module: AnnealedEGreedyModule) -> None:
+        super().__init__(policy)
+        self.eps_module = eps_module
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        egreedy = AnnealedEGreedyModule(context.action_spec, **eps_schedule(context.cfg.algo), device=context.action_spec.device)
+        return cls(TensorDictSequential(context.actor, egreedy), egreedy)
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        return cls.schema.name if learns else "random"  # exploration only: random actions
+
+    @property
+    def eps(self) -> float:
+        return float(self.eps_module.eps)
+
+    def anneal(self, frames: int) -> None:
+        self.eps_module.step(frames)
+
+
+@dataclass
+class RNDExploration(ExplorationConfig):
+    """Random network distillation (TorchRL's RNDTransform and RNDLoss): an intrinsic reward, e-greedy acting."""
+
+    name: str = "rnd"
+    intrinsic_coef: float = setting(0.5, NON_NEGATIVE)  # the reward learned from: extrinsic + coef * intrinsic
+    num_cells: list[int] = setting([64, 64], LAYERS)  # target and predictor networks
+    embedding_size: int = setting(64, POSITIVE_INT)
+    lr: float = setting(1e-3, POSITIVE)  # predictor's Adam; one step per Q update, on the Q update's batch
+
+
+class RNDExplorer(EGreedyExplorer):
+    """``exploration=rnd``: e-greedy acting on reward plus TorchRL's RND bonus; the predictor learns on each Q batch.
+
+    The transform is appended to the training env, so every collected frame carries
+    ``("next", "intrinsic_reward")``; the loss normalizes observations with the
+    transform's running statistics once they exist (after the first collected step).
+    """
+
+    schema = RNDExploration
+
+    def __init__(self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float) -> None:
+        super().__init__(policy, eps_module)
+        self.rnd, self.loss, self.step, self.intrinsic_coef = rnd, loss, step, intrinsic_coef
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        egreedy = EGreedyExplorer.build(context)
+        exploration = context.cfg.exploration
+        target, predictor = (
+            MLP(
+                in_features=context.observation_size,
+                out_features=exploration.embedding_size,
+                num_cells=list(exploration.num_cells),
+                device=context.device,
+            )
+            for _ in range(2)
+        )
+        rnd = RNDTransform(target, predictor)
+        context.env.append_transform(rnd)
+        loss = RNDLoss(predictor, target)
+        step = GradientStep(lambda batch: loss(batch)["loss_predictor"], adam(predictor.parameters(), exploration.lr), None, compile=context.cfg.compile)
+        return cls(egreedy.policy, egreedy.eps_module, rnd, loss, step, exploration.intrinsic_coef)
+
+    def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
+        """One step of the predictor, normalizing observations with the statistics the transform collects with."""
+        if self.loss.obs_rms is None:  # the transform creates them at its first step
+            self.loss.obs_rms = self.rnd.obs_rms
+        return {"loss_rnd": self.step(batch)}
+
+    def state_dict(self) -> dict:
+        return {"rnd": self.rnd.state_dict(), "rnd_optimizer": self.step.optimizer.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.rnd.load_state_dict(state["rnd"])
+        self.step.optimizer.load_state_dict(state["rnd_optimizer"])
+
+
+@dataclass
+class NoisyExploration(ExplorationConfig):
+    """NoisyNet (TorchRL's NoisyLinear layers in the Q-network): learned parameter noise, no eps."""
+
+    name: str = "noisy"
+    std_init: float = setting(0.5, POSITIVE)  # initial noise scale of every layer
+
+
+class NoisyExplorer(Explorer):
+    """``exploration=noisy``: the Q-network's own noise explores; it is resampled after every Q update."""
+
+    schema = NoisyExploration
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        context.q_loss.deterministic_sampling_mode = ExplorationType.RANDOM  # it learns through its noise, as it acts
+        return cls(context.actor)
+
+    @classmethod
+    def q_network_noise(cls, exploration: DictConfig) -> float | None:
+        return exploration.std_init
+
+    def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
+        self.policy.apply(reset_noise)
+        return {}
+
+
+@dataclass
+class PlanningExploration(ExplorationConfig):
+    """Explorers whose exploring steps plan with a dynamics model towards the rarest predicted state."""
+
+    window: int = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)"))
+    horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
+    model_error_threshold: Optional[float] = setting(None, NON_NEGATIVE.or_none())  # random until the model is this good
+
+
+class DynamicsTraining:
+    """The dynamics model's own updates: a credit of ``updates_per_frame`` per frame, after ``learning_starts``.
+
+    Its input statistics are fitted on the replay buffer before the first update.
+    """
+
+    def __init__(self, model: DynamicsModel, loss: DynamicsLoss, dynamics: DictConfig, *, compile: bool) -> None:
+        self.model = model
+        self.step = GradientStep(lambda batch: loss(batch)["loss_dynamics"], adam(model.parameters(), dynamics.lr), dynamics.max_grad_norm, compile=compile)
+        self.learning_starts, self.updates_per_frame, self.batch_size = dynamics.learning_starts, dynamics.updates_per_frame, dynamics.batch_size
+        self.updates, self.credit, self.last_loss = 0, 0.0, None
+
+    def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
+        if frames < self.learning_starts:
+            return
+        self.credit += new_frames * self.updates_per_frame
+        while self.credit >= 1:
+            if self.updates == 0:
+                self.model.fit_normalization(replay_buffer, next_observation_key=SUCCESSOR_KEY)
+            self.last_loss = self.update(replay_buffer)
+            self.updates += 1
+            self.credit -= 1
+
+    def update(self, replay_buffer: ReplayBuffer) -> float:
+        """One gradient step on its own batch from the replay buffer."""
+        return self.step(replay_buffer.sample(self.batch_size).exclude("index"))
+
+    def state_dict(self) -> dict:
+        return {"optimizer": self.step.optimizer.state_dict(), "updates": self.updates, "credit": self.credit, "last_loss": self.last_loss}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.step.optimizer.load_state_dict(state["optimizer"])
+        self.updates, self.credit, self.last_loss = state["updates"], state["credit"], state["last_loss"]
+
+
+class PlanningExplorer(EGreedyExplorer):
+    """The paper's exploration: with probability eps, the action whose predicted next state the novelty scorer rates rarest.
+
+    The policy is :class:`~torchrl_mbe.ModelBasedExplorationPolicy` around the actor;
+    the dynamics model is learned (``dynamics=mlp``) or MountainCar's physics
+    (``dynamics=oracle``, nothing to train). Its error on every new batch, before
+    it is trained on, feeds the policy's warm-up switch. Subclasses choose the
+    novelty scorer (:meth:`make_novelty`).
+    """
+
+    schema = PlanningExploration
+
+    def __init__(self, policy: ModelBasedExplorationPolicy, loss: DynamicsLoss, training: DynamicsTraining | None) -> None:
+        super().__init__(policy, policy)
+        self.loss = loss
+        self.training = training  # None for the oracle, which has nothing to learn
+        self.val_error: float | None = None
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        cfg = context.cfg
+        exploration = cfg.exploration
+        if cfg.dynamics.name == "oracle":
+            dynamics = MountainCarDynamics(context.action_spec)
+        else:
+            dynamics = DynamicsModel(context.observation_size, context.action_spec, cfg.dynamics.num_cells, device=context.device)
+        novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)
+        planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
+        policy = ModelBasedExplorationPolicy(
+            context.actor, planner, **eps_schedule(cfg.algo), model_error_threshold=exploration.model_error_threshold
+        )
+        loss = DynamicsLoss(dynamics)
+        loss.set_keys(next_observation=SUCCESSOR_KEY)
+        training = DynamicsTraining(dynamics, loss, cfg.dynamics, compile=cfg.compile) if isinstance(dynamics, DynamicsModel) else None
+        return cls(policy, loss, training)
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        """The novelty scorer, one window per environment (``kwargs``: ``batch_shape``, ``device``)."""
+        raise NotImplementedError
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        return f"{cls.schema.name}-oracle" if cfg.dynamics.name == "oracle" else cls.schema.name
+
+    def observe(self, batch: TensorDictBase) -> None:
+        """The dynamics error on the new frames (not yet trained on), smoothed; feeds the warm-up switch."""
+        frames = one_step_transitions(batch).reshape(-1)
+        with torch.no_grad():
+            error = float(self.loss(frames)["loss_dynamics"])
+        self.val_error = error if self.val_error is None else 0.9 * self.val_error + 0.1 * error
+        self.policy.report_model_error(self.val_error)
+
+    def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
+        if self.training is not None:
+            self.training.learn(replay_buffer, frames, new_frames)
+
+    def log_fields(self) -> dict[str, float | None]:
+        return {"loss_dynamics": self.training.last_loss if self.training is not None else None, "dynamics_val_error": self.val_error}
+
+    def summary_fields(self) -> dict[str, int]:
+        return {"dynamics_updates": self.training.updates if self.training is not None else 0}
+
+    def state_dict(self) -> dict:
+        return {"val_error": self.val_error, "training": self.training.state_dict() if self.training is not None else None}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.val_error = state["val_error"]
+        if self.training is not None:
+            self.training.load_state_dict(state["training"])
+
+
+@dataclass
+class GaussianExploration(PlanningExploration):
+    name: str = "gaussian"  # the paper: Gaussian fitted to the window
+
+
+class GaussianExplorer(PlanningExplorer):
+    """``exploration=gaussian``, the paper's: the least likely state under a full-covariance Gaussian of the window."""
+
+    schema = GaussianExploration
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        return scorers.RollingGaussianDensity(observation_size, exploration.window, **kwargs)
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        return "oracle" if cfg.dynamics.name == "oracle" else cls.schema.name  # the paper's oracle experiment
+
+
+@dataclass
+class KernelExploration(PlanningExploration):
+    name: str = "kernel"  # Oh et al. (2015): Gaussian-kernel similarity to the window
+    bandwidth: float = setting(0.1, POSITIVE)
+
+
+class KernelExplorer(PlanningExplorer):
+    """``exploration=kernel``, the paper's baseline (Oh et al., 2015): the least similar state by a Gaussian kernel."""
+
+    schema = KernelExploration
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        return scorers.GaussianKernelNovelty(observation_size, exploration.window, bandwidth=exploration.bandwidth, **kwargs)
+
+
+@dataclass
+class DiagonalExploration(PlanningExploration):
+    name: str = "diagonal"  # a Gaussian without correlations
+
+
+class DiagonalExplorer(PlanningExplorer):
+    """``exploration=diagonal``: a Gaussian of the window without correlations."""
+
+    schema = DiagonalExploration
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        return scorers.DiagonalGaussianDensity(observation_size, exploration.window, **kwargs)
+
+
+@dataclass
+class KNearestExploration(PlanningExploration):
+    name: str = "knn"  # mean scaled distance to the k nearest states of the window
+    k: int = setting(5, POSITIVE_INT)
+
+
+class KNearestExplorer(PlanningExplorer):
+    """``exploration=knn``: the state farthest from its k nearest neighbours in the window."""
+
+    schema = KNearestExploration
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        return scorers.KNearestNovelty(observation_size, exploration.window, k=exploration.k, **kwargs)
+
+
+@dataclass
+class KernelDensityExploration(PlanningExploration):
+    name: str = "kde"  # kernel density estimate, Scott's-rule bandwidth per dimension
+    window: int = setting(500, WINDOW)
+
+
+class KernelDensityExplorer(PlanningExplorer):
+    """``exploration=kde``: the least likely state under a kernel density estimate of the window."""
+
+    schema = KernelDensityExploration
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        return scorers.KernelDensityNovelty(observation_size, exploration.window, **kwargs)
+
+
+EXPLORERS: dict[str, type[Explorer]] = {
+    explorer.schema.name: explorer
+    for explorer in (
+        GaussianExplorer,
+        KernelExplorer,
+        DiagonalExplorer,
+        KNearestExplorer,
+        KernelDensityExplorer,
+        RNDExplorer,
+        NoisyExplorer,
+        EGreedyExplorer,
+        Explorer,
+    )
+}
+"""Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde),
+TorchRL's RND and NoisyNet, e-greedy (random exploring actions) and none (never explores)."""
+
+
+def explorer_of(exploration: DictConfig) -> type[Explorer]:
+    """The registered explorer of an ``exploration`` config (its name is one of :data:`EXPLORERS`, by the schema).
+
+    Examples:
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_mbe.app.explorers import KernelExploration, explorer_of
+        >>> explorer_of(OmegaConf.structured(KernelExploration())).__name__
+        'KernelExplorer'
+    """
+    return EXPLORERS[exploration.name]

@@ -1,0 +1,71 @@
+"""Optimization steps shared by the algorithms: fused Adam and one gradient step of a loss."""
+from __future__ import annotations
+
+import logging
+
+import torch
+from tensordict import TensorDictBase
+
+__all__ = ["GradientStep", "adam"]
+
+log = logging.getLogger(__name__)
+
+
+def adam(parameters, lr: float) -> torch.optim.Adam:
+    """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
+
+    The same update as the default per-parameter loop (up to floating-point
+    rounding, so a seed's trajectory differs), in one kernel call instead of a
+    few per parameter.
+    """
+    return torch.optim.Adam(parameters, lr=lr, fused=True)
+
+
+class GradientStep:
+    """One gradient step of a loss: loss and backward (compiled with ``compile=True``), clipping, optimizer step.
+
+    With ``compile``, ``torch.compile`` traces the loss and its backward on the
+    first call (seconds on a CPU) and then runs that graph; if compilation fails,
+    a warning says so and the step runs eagerly from then on. Clipping and the
+    optimizer step stay eager (they break graphs).
+
+    Args:
+        loss (callable): ``loss(batch) -> scalar tensor``.
+        optimizer (torch.optim.Optimizer): steps the parameters the loss depends on.
+        max_grad_norm (float, optional): clips the gradient norm of each parameter group.
+
+    Keyword Args:
+        compile (bool): compile the loss and backward. Defaults to ``False``.
+    """
+
+    def __init__(self, loss, optimizer: torch.optim.Optimizer, max_grad_norm: float | None, *, compile: bool = False) -> None:
+        self.loss = loss
+        self.optimizer = optimizer
+        self.max_grad_norm = max_grad_norm
+        self._loss_and_backward = torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
+
+    def __call__(self, batch: TensorDictBase) -> float:
+        """Takes the step on ``batch`` and returns the loss before it."""
+        self.optimizer.zero_grad(set_to_none=True)
+        loss = self._compiled_or_eager(batch)
+        if self.max_grad_norm is not None:
+            for group in self.optimizer.param_groups:
+                torch.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
+        self.optimizer.step()
+        return loss.item()
+
+    def _eager_loss_and_backward(self, batch: TensorDictBase) -> torch.Tensor:
+        loss = self.loss(batch)
+        loss.backward()
+        return loss.detach()
+
+    def _compiled_or_eager(self, batch: TensorDictBase) -> torch.Tensor:
+        if self._loss_and_backward == self._eager_loss_and_backward:
+            return self._loss_and_backward(batch)
+        try:
+            return self._loss_and_backward(batch)
+        except torch._dynamo.exc.TorchDynamoException as error:  # the compiler, not the loss, failed
+            log.warning("torch.compile failed (%s); this update runs eagerly from now on.", type(error).__name__)
+            self._loss_and_backward = self._eager_loss_and_backward
+            self.optimizer.zero_grad(set_to_none=True)
+            return self._loss_and_backward(batch)
