@@ -1,10 +1,12 @@
 """Environments: the task registry, ``make_env`` and MountainCar in torch (batched env, oracle dynamics)."""
+from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
 from torchrl_mbe.envs.episodes import Episode, finished_episodes, first_episodes, reached_goal
 from torchrl_mbe.envs.make import make_env
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics, mountaincar_step
 from torchrl_mbe.envs.registry import SUPPORTED_ENVS, TASKS, EnvBounds, Task, resolve_env_id, task_of
 
 __all__ = [
+    "BatchedDeepSeaEnv",
     "BatchedMountainCarEnv",
     "EnvBounds",
     "Episode",

@@ -1,8 +1,8 @@
-"""``make_env``: gymnasium discrete-action tasks wrapped the way a DQN needs them."""
+"""``make_env``: discrete-action tasks (gymnasium's, or the registry's torch-only DeepSea) wrapped the way a DQN needs them."""
 from __future__ import annotations
 
 from functools import partial
-from typing import Literal
+from typing import Any, Literal
 
 import torch
 from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
@@ -19,6 +19,7 @@ def make_env(
     backend: Literal["gym", "torch"] | None = None,
     seed: int | None = None,
     device: torch.device | str = "cpu",
+    **env_kwargs: Any,
 ) -> TransformedEnv:
     """An environment (or a batch of ``num_envs`` copies) ready for DQN.
 
@@ -33,12 +34,14 @@ def make_env(
       costs microseconds, far less than the inter-process traffic, so worker
       processes do not pay off (and this project targets 2-core machines).
     * ``"torch"``: the copies step together as tensor operations
-      (the registry's ``Task.torch_env``, today MountainCar-v0 as
+      (the registry's ``Task.torch_env``, e.g.
       :class:`~torchrl_mbe.envs.mountaincar.BatchedMountainCarEnv`); batch size
-      ``(num_envs,)`` even for one copy.
+      ``(num_envs,)`` even for one copy. The only backend of a torch-only task
+      (DeepSea, :class:`~torchrl_mbe.envs.deepsea.BatchedDeepSeaEnv`).
 
-    The default is ``"torch"`` when ``num_envs > 1`` and the task has a torch
-    implementation, ``"gym"`` otherwise (so ``make_env(name)`` is a ``GymEnv``).
+    The default is ``"torch"`` when the task has a torch implementation and
+    ``num_envs > 1`` or no gymnasium version, ``"gym"`` otherwise (so
+    ``make_env(name)`` of a gymnasium task is a ``GymEnv``).
 
     Args:
         name (str): a short name of :data:`~torchrl_mbe.envs.registry.TASKS` or a gymnasium id.
@@ -48,6 +51,8 @@ def make_env(
         backend (str, optional): ``"gym"`` or ``"torch"``; see above.
         seed (int, optional): seeds the environment (copies get distinct seeds).
         device (torch.device): where the env's tensors live. Defaults to CPU.
+        **env_kwargs: keyword arguments of the torch implementation (DeepSea's
+            ``size``, ``mapping_seed``, ...); the gym backend takes none.
 
     Examples:
         >>> from torchrl_mbe import make_env
@@ -56,23 +61,30 @@ def make_env(
         (torch.Size([2]), 3)
         >>> type(make_env("mountaincar", num_envs=8).base_env).__name__, make_env("cartpole", num_envs=2).batch_size
         ('BatchedMountainCarEnv', torch.Size([2]))
+        >>> make_env("deepsea", num_envs=16, seed=0, size=20).observation_spec["observation"].shape
+        torch.Size([16, 400])
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...
-        ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1).
+        ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1), deepsea (DeepSea).
     """
     if int(num_envs) < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs}.")
     env_id = resolve_env_id(name)
     task = task_of(env_id)
     torch_env = task.torch_env if task is not None else None
+    gymnasium = task is None or task.gymnasium
     if backend is None:
-        backend = "torch" if num_envs > 1 and torch_env is not None else "gym"
+        backend = "torch" if torch_env is not None and (num_envs > 1 or not gymnasium) else "gym"
     if backend == "torch":
         if torch_env is None:
             with_torch = sorted(t.env_id for t in TASKS.values() if t.torch_env is not None)
             raise ValueError(f"No torch implementation of {env_id}; torch backends exist for {with_torch}.")
-        base_env = torch_env(num_envs, device=device)
+        base_env = torch_env(num_envs, device=device, **env_kwargs)
+    elif backend == "gym" and not gymnasium:
+        raise ValueError(f"{env_id} has no gymnasium version; it runs with backend='torch' only.")
+    elif backend == "gym" and env_kwargs:
+        raise ValueError(f"Keyword arguments {sorted(env_kwargs)} are for a torch implementation; backend='gym' takes none.")
     elif backend == "gym" and num_envs == 1:
         base_env = GymEnv(env_id, device=device)
     elif backend == "gym":

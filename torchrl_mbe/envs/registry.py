@@ -1,9 +1,10 @@
 """The task registry: every per-environment fact, in one place.
 
-A :class:`Task` names a gymnasium environment the project is tested on and says
-what the rest of the code needs to know about it: its short name, when it counts
-as solved, what reaching its goal means, the box its coverage is measured in and,
-if there is one, its batched torch implementation. Adding an environment means
+A :class:`Task` names an environment the project is tested on (a gymnasium id,
+or for DeepSea, which exists only in torch, its own id) and says what the rest of
+the code needs to know about it: its short name, when it counts as solved, what
+reaching its goal means, the box its coverage is measured in and, if there is
+one, its batched torch implementation. Adding an environment means
 adding one entry to :data:`TASKS` (and a ``conf/env/<alias>.yaml`` for the app).
 """
 from __future__ import annotations
@@ -16,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 from torchrl.envs import EnvBase
 
+from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv
 
 __all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "task_of", "resolve_env_id"]
@@ -81,23 +83,28 @@ class Task:
 
     Args:
         alias (str): the short name used by ``make_env`` and ``conf/env/``.
-        env_id (str): the gymnasium id.
+        env_id (str): the gymnasium id (with ``gymnasium=False``, the task's own id).
         solved_threshold (float): average return over 100 episodes at which
             gymnasium calls the task solved.
         goal (str): what counts as reaching the goal in an episode:
             ``"terminated"`` (the env's own termination), ``"truncated"`` (lasting
-            until the time limit) or ``"landed"`` (terminated with a positive last reward).
-        bounds (EnvBounds): the box coverage is measured in.
+            until the time limit) or ``"landed"`` (terminated with a positive last
+            reward: LunarLander's landing, DeepSea's treasure).
+        bounds (EnvBounds, optional): the box coverage is measured in; ``None`` when
+            no fixed box fits (DeepSea's one-hot observation has ``size**2`` entries).
         torch_env (type, optional): a batched torch implementation
-            (``cls(num_envs, device=...)``), used by ``make_env(..., backend="torch")``.
+            (``cls(num_envs, device=..., **env_kwargs)``), used by ``make_env(..., backend="torch")``.
+        gymnasium (bool): whether ``env_id`` is a gymnasium id; ``False`` for a
+            task that exists only as ``torch_env``.
     """
 
     alias: str
     env_id: str
     solved_threshold: float
     goal: GoalRule
-    bounds: EnvBounds
+    bounds: EnvBounds | None
     torch_env: type[EnvBase] | None = None
+    gymnasium: bool = True
 
 
 TASKS: dict[str, Task] = {
@@ -150,16 +157,29 @@ TASKS: dict[str, Task] = {
                 plane=(0, 2),
             ),
         ),
+        Task(
+            "deepsea",
+            "DeepSea",
+            # An episode returns 0.99 if it finds the treasure and at most 0 if not (the
+            # deterministic default), so a greedy evaluation averages 0.99 or <= 0: 0.5 means
+            # the greedy policy gets the treasure, and over 100 training episodes that more
+            # than half of them did. Not meant for the stochastic variant (noisy rewards).
+            solved_threshold=0.5,
+            goal="landed",  # terminated with a positive last reward: the treasure, the only positive reward
+            bounds=None,  # the report would decode the one-hot observation to a (row, column) plane
+            torch_env=BatchedDeepSeaEnv,
+            gymnasium=False,
+        ),
     )
 }
 """The tested environments, by short name."""
 
 SUPPORTED_ENVS: dict[str, str] = {alias: task.env_id for alias, task in TASKS.items()}
-"""Short names accepted everywhere (config files, ``make_env``) and their gymnasium ids."""
+"""Short names accepted everywhere (config files, ``make_env``) and their ids (gymnasium's, or DeepSea's own)."""
 
 
 def task_of(env_id: str) -> Task | None:
-    """The registry entry of a gymnasium id, or ``None`` for an untested environment.
+    """The registry entry of an env id, or ``None`` for an untested environment.
 
     Examples:
         >>> from torchrl_mbe.envs.registry import task_of
@@ -174,17 +194,21 @@ def _supported_list() -> str:
 
 
 def resolve_env_id(name: str) -> str:
-    """The gymnasium id of a short name or id; one clear error for anything unsupported.
+    """The env id of a short name or id; one clear error for anything unsupported.
 
-    Any registered gymnasium id with a discrete action space is accepted; the
-    project is tested on the entries of :data:`TASKS`.
+    Any registered gymnasium id with a discrete action space is accepted, and the
+    torch-only tasks of :data:`TASKS` (``gymnasium=False``); the project is tested
+    on the entries of :data:`TASKS`.
 
     Examples:
         >>> from torchrl_mbe.envs.registry import resolve_env_id
-        >>> resolve_env_id("acrobot")
-        'Acrobot-v1'
+        >>> resolve_env_id("acrobot"), resolve_env_id("deepsea")
+        ('Acrobot-v1', 'DeepSea')
     """
     env_id = SUPPORTED_ENVS.get(name.lower(), name)
+    task = task_of(env_id)
+    if task is not None and not task.gymnasium:
+        return env_id
     if env_id not in gym.registry:
         raise ValueError(f"Unknown environment {name!r}. Supported: {_supported_list()}.")
     action_space = gym.spec(env_id).make().action_space

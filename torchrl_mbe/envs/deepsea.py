@@ -1,0 +1,194 @@
+"""bsuite's DeepSea in torch: ``num_envs`` copies of one N x N exploration chain, stepped together.
+
+A transcription of ``bsuite/environments/deep_sea.py`` (google-deepmind/bsuite,
+last changed in commit 6d8f649, identical in the bsuite 0.3.6 release) as a
+batched TorchRL env. bsuite's experiment (``bsuite/experiments/deep_sea/``) runs
+sizes N = 10, 12, ..., 50 with ``mapping_seed=42`` for 10,000 episodes each; its
+score counts a size as solved at the first episode where fewer than 90% of the
+episodes so far were "bad" (left the diagonal), and as beating dithering if that
+happens before episode ``2**N + 100``.
+"""
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
+from torchrl.envs import EnvBase
+
+__all__ = ["BatchedDeepSeaEnv"]
+
+
+class BatchedDeepSeaEnv(EnvBase):
+    """``num_envs`` copies of bsuite's ``DeepSea(size)`` stepped together as torch tensors.
+
+    The agent starts in the top-left cell of an N x N grid and falls one row per
+    step; each step moves it one column left or right (clipped at the edges), so an
+    episode lasts exactly N steps and ends ``terminated``. As in bsuite:
+
+    * which action moves right is drawn per cell: ``action_mapping`` is
+      ``numpy.random.RandomState(mapping_seed).binomial(1, 0.5, [N, N])``, and
+      action ``a`` in cell ``(row, column)`` moves right iff
+      ``a == action_mapping[row, column]`` (bsuite's ``_action_mapping``, the same
+      numbers for the same ``mapping_seed``);
+    * every right move costs ``unscaled_move_cost / N``; a right move from the last
+      column (reachable only at the last row, by N right moves) earns the treasure,
+      +1. The optimal return is ``1 - unscaled_move_cost`` (0.99); every other
+      episode returns between ``-unscaled_move_cost`` and 0;
+    * the observation is the grid, one-hot at the agent's cell, flattened to
+      ``N * N`` float32 values (row-major: cell ``(row, column)`` is entry
+      ``row * N + column``); after the last step it is all zeros (bsuite's null
+      observation of row N). Actions are one-hot int64 of 2;
+    * ``deterministic=False`` is bsuite's stochastic variant: a right move fails
+      (the column stays) with probability 1/N, still paying its cost, and N(0, 1)
+      noise is added to the reward of the last row's first and last cells.
+
+    All copies share one mapping: they are one MDP, as a single agent collecting
+    from a batch needs (its observation does not reveal the mapping). A run with
+    another MDP, e.g. one population member per mapping, builds its own env with
+    its own ``mapping_seed``. The mapping depends on ``mapping_seed`` alone, never on
+    :meth:`set_seed`, so the evaluation envs ``make_env`` builds with other seeds
+    play the same MDP.
+
+    bsuite's ``bad episode`` count (its score) is not kept: in the deterministic
+    variant an episode is bad iff it misses the treasure, i.e. iff its last reward
+    is not positive.
+
+    Resets may be partial (a ``"_reset"`` mask restarts only those copies). A
+    finished copy (row N) stays put if stepped again, with reward 0, as
+    ``rollout(..., break_when_all_done=True)`` does to copies that finished first.
+
+    Args:
+        num_envs (int): number of copies; the env's ``batch_size`` is ``(num_envs,)``.
+
+    Keyword Args:
+        size (int): N, the grid's side. Defaults to 10 (bsuite's ``deep_sea/0``).
+        mapping_seed (int): seeds the action mapping. Defaults to 42 (bsuite's sweep).
+        deterministic (bool): bsuite's default ``True``; ``False`` for the stochastic variant.
+        unscaled_move_cost (float): the total cost of N right moves. Defaults to 0.01.
+        randomize_actions (bool): ``False`` is bsuite's debug mode: action 1 moves
+            right everywhere. Defaults to ``True``.
+        seed (int, optional): seeds the stochastic variant's randomness. Defaults to a
+            seed drawn from torch's global generator.
+        device (torch.device): where the env's tensors live. Defaults to CPU.
+
+    Attributes:
+        action_mapping (Tensor): the int64 ``(N, N)`` action that moves right in each cell.
+        row, column (Tensor): the int64 ``(num_envs,)`` position of every copy.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.envs.utils import check_env_specs
+        >>> from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
+        >>> env = BatchedDeepSeaEnv(4, size=10)
+        >>> check_env_specs(env)
+        >>> def always_right(td):  # the action the mapping sends right, in every copy's cell
+        ...     return td.set("action", torch.nn.functional.one_hot(env.action_mapping[env.row, env.column], 2))
+        >>> rollout = env.rollout(100, always_right)
+        >>> rollout.shape, rollout["observation"].shape
+        (torch.Size([4, 10]), torch.Size([4, 10, 100]))
+        >>> rollout["next", "reward"].sum(1).squeeze(-1)
+        tensor([0.9900, 0.9900, 0.9900, 0.9900])
+        >>> bool(rollout["next", "terminated"][:, -1].all()), rollout["next", "observation"][:, -1].sum().item()
+        (True, 0.0)
+    """
+
+    def __init__(
+        self,
+        num_envs: int,
+        *,
+        size: int = 10,
+        mapping_seed: int = 42,
+        deterministic: bool = True,
+        unscaled_move_cost: float = 0.01,
+        randomize_actions: bool = True,
+        seed: int | None = None,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1:
+            raise ValueError(f"DeepSea's size must be an integer >= 1 (bsuite's sweep: 10, 12, ..., 50), got {size!r}.")
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
+        super().__init__(device=device, batch_size=(int(num_envs),))
+        self.size = int(size)
+        self.deterministic = bool(deterministic)
+        self.unscaled_move_cost = float(unscaled_move_cost)
+        self._make_spec()
+        if randomize_actions:
+            mapping = np.random.RandomState(mapping_seed).binomial(1, 0.5, [self.size, self.size])
+        else:
+            mapping = np.ones([self.size, self.size])
+        self.register_buffer("action_mapping", torch.as_tensor(mapping, dtype=torch.int64, device=self.device), persistent=False)
+        self.register_buffer("row", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False)
+        self.register_buffer("column", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False)
+        self.register_buffer("cells", torch.arange(self.size**2, device=self.device), persistent=False)
+        self._generator = torch.Generator()
+        if seed is None:
+            seed = int(torch.empty((), dtype=torch.int64).random_())
+        self.set_seed(seed)
+
+    def _make_spec(self) -> None:
+        batch, device, cells = self.batch_size, self.device, self.size**2
+        self.observation_spec = Composite(
+            observation=Bounded(low=0.0, high=1.0, shape=(*batch, cells), dtype=torch.float32, device=device),
+            shape=batch,
+            device=device,
+        )
+        self.action_spec = OneHot(2, shape=(*batch, 2), dtype=torch.int64, device=device)
+        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=torch.float32, device=device)
+        flag = Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=device)
+        self.done_spec = Composite(
+            done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=batch, device=device
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            self._generator.seed()
+        else:
+            self._generator.manual_seed(int(seed))
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        if reset is None:
+            self.row.zero_()
+            self.column.zero_()
+        else:
+            reset = reset.reshape(self.batch_size)
+            self.row.masked_fill_(reset, 0)
+            self.column.masked_fill_(reset, 0)
+        return self._output()
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        last = self.size - 1
+        live = self.row <= last  # finished copies (row N) stay put
+        action = tensordict.get("action").argmax(-1)
+        right = live & (action == self.action_mapping[self.row.clamp(max=last), self.column])
+        reward = (right & (self.column == last)).to(torch.float32)  # the treasure
+        moves_right = right
+        if not self.deterministic:
+            chain_end = live & (self.row == last) & ((self.column == 0) | (self.column == last))
+            reward += chain_end * torch.randn(self.batch_size, generator=self._generator).to(self.device)
+            moves_right = right & (torch.rand(self.batch_size, generator=self._generator).to(self.device) > 1 / self.size)
+        reward -= right * (self.unscaled_move_cost / self.size)
+        move = moves_right.long() - (live & ~right).long()  # +1 right, -1 left, 0 when a right move fails
+        self.column.copy_((self.column + move).clamp(0, last))
+        self.row.add_(live.long())
+        output = self._output()
+        output.set("reward", reward.unsqueeze(-1))
+        return output
+
+    def _output(self) -> TensorDictBase:
+        position = (self.row * self.size + self.column).unsqueeze(-1)  # >= N * N at row N: no cell, all zeros
+        terminated = (self.row == self.size).unsqueeze(-1)
+        return TensorDict(
+            {
+                "observation": (self.cells == position).to(torch.float32),
+                "done": terminated,
+                "terminated": terminated.clone(),
+                "truncated": torch.zeros_like(terminated),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
