@@ -1,4 +1,6 @@
 """Environments: the task registry, ``make_env`` and MountainCar in torch (batched env, oracle dynamics)."""
+from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv, acrobot_step
+from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv, cartpole_step
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
 from torchrl_mbe.envs.episodes import Episode, finished_episodes, first_episodes, reached_goal
 from torchrl_mbe.envs.make import make_env
@@ -6,6 +8,8 @@ from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynam
 from torchrl_mbe.envs.registry import SUPPORTED_ENVS, TASKS, EnvBounds, Task, resolve_env_id, task_of
 
 __all__ = [
+    "BatchedAcrobotEnv",
+    "BatchedCartPoleEnv",
     "BatchedDeepSeaEnv",
     "BatchedMountainCarEnv",
     "EnvBounds",
@@ -14,6 +18,8 @@ __all__ = [
     "SUPPORTED_ENVS",
     "TASKS",
     "Task",
+    "acrobot_step",
+    "cartpole_step",
     "finished_episodes",
     "first_episodes",
     "make_env",

@@ -17,6 +17,8 @@ import gymnasium as gym
 import numpy as np
 from torchrl.envs import EnvBase
 
+from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv
+from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv
 
@@ -144,6 +146,7 @@ TASKS: dict[str, Task] = {
                 labels=("cos theta1", "sin theta1", "cos theta2", "sin theta2", "theta1 velocity", "theta2 velocity"),
                 plane=(4, 5),
             ),
+            torch_env=BatchedAcrobotEnv,
         ),
         Task(
             "cartpole",
@@ -156,6 +159,7 @@ TASKS: dict[str, Task] = {
                 labels=("cart position", "cart velocity", "pole angle", "pole angular velocity"),
                 plane=(0, 2),
             ),
+            torch_env=BatchedCartPoleEnv,
         ),
         Task(
             "deepsea",
