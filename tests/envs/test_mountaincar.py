@@ -132,12 +132,12 @@ def test_same_seed_same_episodes_other_seed_other_episodes():
 def test_make_env_batches_other_tasks_serially_and_rejects_bad_requests():
     assert isinstance(make_env("mountaincar").base_env, GymEnv)  # single env unchanged
     assert isinstance(make_env("mountaincar", num_envs=3, backend="gym").base_env, SerialEnv)
-    cartpole = make_env("cartpole", num_envs=2, seed=0)
-    assert isinstance(cartpole.base_env, SerialEnv) and cartpole.rollout(3).shape == (2, 3)
+    lunarlander = make_env("lunarlander", num_envs=2, seed=0)  # Box2D: no torch implementation
+    assert isinstance(lunarlander.base_env, SerialEnv) and lunarlander.rollout(3).shape == (2, 3)
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         make_env("mountaincar", num_envs=0)
-    with pytest.raises(ValueError, match="No torch implementation of CartPole-v1"):
-        make_env("cartpole", num_envs=2, backend="torch")
+    with pytest.raises(ValueError, match="No torch implementation of LunarLander-v3"):
+        make_env("lunarlander", num_envs=2, backend="torch")
     with pytest.raises(ValueError, match="backend must be"):
         make_env("mountaincar", backend="jax")
 
