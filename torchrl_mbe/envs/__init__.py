@@ -1,4 +1,11 @@
-"""Environments: the task registry, ``make_env`` and MountainCar in torch (batched env, oracle dynamics)."""
+"""Environments: the task registry, ``make_env``, and the torch-batched tasks.
+
+The torch-batched envs are MountainCar-v0 (with its oracle dynamics), CartPole-v1,
+Acrobot-v1 and bsuite's DeepSea; each one's ``state_dict`` holds its whole state,
+random generator included (see :class:`~torchrl_mbe.envs.batched.BatchedTorchEnv`).
+"""
+from __future__ import annotations
+
 from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv, acrobot_step
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv, cartpole_step
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv

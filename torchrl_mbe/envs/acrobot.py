@@ -132,7 +132,7 @@ class BatchedAcrobotEnv(BatchedClassicControlEnv):
     * ``observation`` is :func:`acrobot_observation` (float32), actions are
       one-hot int64 (torque -1, 0, +1).
 
-    Batching, partial resets and seeding are those of
+    Batching, partial resets, seeding and ``state_dict`` are those of
     :class:`~torchrl_mbe.envs.batched.BatchedClassicControlEnv`.
 
     Args:

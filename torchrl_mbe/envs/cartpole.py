@@ -80,7 +80,7 @@ class BatchedCartPoleEnv(BatchedClassicControlEnv):
       12 degrees, ``truncated`` after ``max_episode_steps`` steps (500);
     * ``observation`` is the float32 state, actions are one-hot int64 (push left, push right).
 
-    Batching, partial resets and seeding are those of
+    Batching, partial resets, seeding and ``state_dict`` are those of
     :class:`~torchrl_mbe.envs.batched.BatchedClassicControlEnv`.
 
     Args:

@@ -11,17 +11,19 @@ happens before episode ``2**N + 100``.
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, OneHot, Unbounded
-from torchrl.envs import EnvBase
+from tensordict import TensorDictBase
+from torchrl.data import Bounded
+
+from torchrl_mbe.envs.batched import BatchedTorchEnv
 
 __all__ = ["BatchedDeepSeaEnv"]
 
 
-class BatchedDeepSeaEnv(EnvBase):
+class BatchedDeepSeaEnv(BatchedTorchEnv):
     """``num_envs`` copies of bsuite's ``DeepSea(size)`` stepped together as torch tensors.
 
     The agent starts in the top-left cell of an N x N grid and falls one row per
@@ -59,9 +61,12 @@ class BatchedDeepSeaEnv(EnvBase):
     Resets may be partial (a ``"_reset"`` mask restarts only those copies). A
     finished copy (row N) stays put if stepped again, with reward 0, as
     ``rollout(..., break_when_all_done=True)`` does to copies that finished first.
+    ``state_dict`` holds the positions and the generator's state (see
+    :class:`~torchrl_mbe.envs.batched.BatchedTorchEnv`), not the mapping: the
+    arguments fix it.
 
     Args:
-        num_envs (int): number of copies; the env's ``batch_size`` is ``(num_envs,)``.
+        num_envs (int or tuple of int): number of copies (``batch_size`` ``(num_envs,)``), or the batch shape.
 
     Keyword Args:
         size (int): N, the grid's side. Defaults to 10 (bsuite's ``deep_sea/0``).
@@ -76,7 +81,7 @@ class BatchedDeepSeaEnv(EnvBase):
 
     Attributes:
         action_mapping (Tensor): the int64 ``(N, N)`` action that moves right in each cell.
-        row, column (Tensor): the int64 ``(num_envs,)`` position of every copy.
+        row, column (Tensor): the int64 ``(*batch_size)`` position of every copy.
 
     Examples:
         >>> import torch
@@ -95,9 +100,11 @@ class BatchedDeepSeaEnv(EnvBase):
         (True, 0.0)
     """
 
+    num_actions = 2
+
     def __init__(
         self,
-        num_envs: int,
+        num_envs: int | Sequence[int],
         *,
         size: int = 10,
         mapping_seed: int = 42,
@@ -109,45 +116,24 @@ class BatchedDeepSeaEnv(EnvBase):
     ) -> None:
         if isinstance(size, bool) or not isinstance(size, numbers.Integral) or size < 1:
             raise ValueError(f"DeepSea's size must be an integer >= 1 (bsuite's sweep: 10, 12, ..., 50), got {size!r}.")
-        if int(num_envs) < 1:
-            raise ValueError(f"num_envs must be >= 1, got {num_envs}.")
-        super().__init__(device=device, batch_size=(int(num_envs),))
+        super().__init__(num_envs, seed=seed, device=device)
         self.size = int(size)
         self.deterministic = bool(deterministic)
         self.unscaled_move_cost = float(unscaled_move_cost)
-        self._make_spec()
+        cells = self.size**2
+        self._make_spec(
+            Bounded(low=0.0, high=1.0, shape=(*self.batch_size, cells), dtype=torch.float32, device=self.device)
+        )
         if randomize_actions:
             mapping = np.random.RandomState(mapping_seed).binomial(1, 0.5, [self.size, self.size])
         else:
             mapping = np.ones([self.size, self.size])
-        self.register_buffer("action_mapping", torch.as_tensor(mapping, dtype=torch.int64, device=self.device), persistent=False)
-        self.register_buffer("row", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False)
-        self.register_buffer("column", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False)
-        self.register_buffer("cells", torch.arange(self.size**2, device=self.device), persistent=False)
-        self._generator = torch.Generator()
-        if seed is None:
-            seed = int(torch.empty((), dtype=torch.int64).random_())
-        self.set_seed(seed)
-
-    def _make_spec(self) -> None:
-        batch, device, cells = self.batch_size, self.device, self.size**2
-        self.observation_spec = Composite(
-            observation=Bounded(low=0.0, high=1.0, shape=(*batch, cells), dtype=torch.float32, device=device),
-            shape=batch,
-            device=device,
-        )
-        self.action_spec = OneHot(2, shape=(*batch, 2), dtype=torch.int64, device=device)
-        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=torch.float32, device=device)
-        flag = Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=device)
-        self.done_spec = Composite(
-            done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=batch, device=device
-        )
-
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is None:
-            self._generator.seed()
-        else:
-            self._generator.manual_seed(int(seed))
+        # The MDP, fixed by the arguments, is no part of state_dict; the positions are.
+        mapping = torch.as_tensor(mapping, dtype=torch.int64, device=self.device)
+        self.register_buffer("action_mapping", mapping, persistent=False)
+        self.register_buffer("cells", torch.arange(cells, device=self.device), persistent=False)
+        self.register_buffer("row", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device))
+        self.register_buffer("column", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device))
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         reset = None if tensordict is None else tensordict.get("_reset", None)
@@ -158,7 +144,7 @@ class BatchedDeepSeaEnv(EnvBase):
             reset = reset.reshape(self.batch_size)
             self.row.masked_fill_(reset, 0)
             self.column.masked_fill_(reset, 0)
-        return self._output()
+        return self._observation_and_flags()
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         last = self.size - 1
@@ -175,20 +161,11 @@ class BatchedDeepSeaEnv(EnvBase):
         move = moves_right.long() - (live & ~right).long()  # +1 right, -1 left, 0 when a right move fails
         self.column.copy_((self.column + move).clamp(0, last))
         self.row.add_(live.long())
-        output = self._output()
+        output = self._observation_and_flags()
         output.set("reward", reward.unsqueeze(-1))
         return output
 
-    def _output(self) -> TensorDictBase:
+    def _observation_and_flags(self) -> TensorDictBase:
         position = (self.row * self.size + self.column).unsqueeze(-1)  # >= N * N at row N: no cell, all zeros
         terminated = (self.row == self.size).unsqueeze(-1)
-        return TensorDict(
-            {
-                "observation": (self.cells == position).to(torch.float32),
-                "done": terminated,
-                "terminated": terminated.clone(),
-                "truncated": torch.zeros_like(terminated),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        return self._output((self.cells == position).to(torch.float32), terminated, torch.zeros_like(terminated))

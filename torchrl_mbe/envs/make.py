@@ -33,11 +33,19 @@ def make_env(
       (batch size ``(num_envs,)``). Not a ``ParallelEnv``: a classic-control step
       costs microseconds, far less than the inter-process traffic, so worker
       processes do not pay off (and this project targets 2-core machines).
-    * ``"torch"``: the copies step together as tensor operations
-      (the registry's ``Task.torch_env``, e.g.
-      :class:`~torchrl_mbe.envs.mountaincar.BatchedMountainCarEnv`); batch size
-      ``(num_envs,)`` even for one copy. The only backend of a torch-only task
-      (DeepSea, :class:`~torchrl_mbe.envs.deepsea.BatchedDeepSeaEnv`).
+    * ``"torch"``: the copies step together as tensor operations (the
+      registry's ``Task.torch_env``:
+      :class:`~torchrl_mbe.envs.mountaincar.BatchedMountainCarEnv`,
+      :class:`~torchrl_mbe.envs.cartpole.BatchedCartPoleEnv`,
+      :class:`~torchrl_mbe.envs.acrobot.BatchedAcrobotEnv`,
+      :class:`~torchrl_mbe.envs.deepsea.BatchedDeepSeaEnv`); batch size
+      ``(num_envs,)`` even for one copy. The only backend of a torch-only task (DeepSea).
+
+    The returned env's own ``state_dict`` holds only its transforms' (none of
+    these keep any); a torch backend's whole state is ``env.base_env.state_dict()``
+    (see :class:`~torchrl_mbe.envs.batched.BatchedTorchEnv`). The transforms' per-step
+    entries (``step_count``, ``is_init``, ``episode_reward``) live in the tensordict
+    carried from step to step, not in the env.
 
     The default is ``"torch"`` when the task has a torch implementation and
     ``num_envs > 1`` or no gymnasium version, ``"gym"`` otherwise (so

@@ -13,11 +13,11 @@
 from __future__ import annotations
 
 import torch
-from tensordict import NestedKey, TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torchrl.data import Bounded, Categorical, Composite, OneHot, TensorSpec, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.data import TensorSpec
 
+from torchrl_mbe.envs.batched import BatchedClassicControlEnv
 from torchrl_mbe.modules.dynamics import action_indices, num_discrete_actions
 
 __all__ = ["MOUNTAINCAR", "mountaincar_step", "MountainCarDynamics", "BatchedMountainCarEnv"]
@@ -96,11 +96,11 @@ _START_POSITION_RANGE = (-0.6, -0.4)
 """gymnasium's MountainCar-v0 draws the start position uniformly from this range (velocity 0)."""
 
 
-class BatchedMountainCarEnv(EnvBase):
+class BatchedMountainCarEnv(BatchedClassicControlEnv):
     """``num_envs`` copies of gymnasium's MountainCar-v0 stepped together as torch tensors.
 
-    The physics is :func:`mountaincar_step` applied to a
-    ``(num_envs, 2)`` float64 state (gymnasium computes in float64 too, so
+    The physics is :func:`mountaincar_step` applied to a float64
+    ``(*batch_size, 2)`` state (gymnasium computes in float64 too, so
     trajectories agree with it); the rest follows MountainCar-v0 as
     ``gymnasium.make`` builds it:
 
@@ -111,18 +111,15 @@ class BatchedMountainCarEnv(EnvBase):
     * ``observation`` is float32 (position, velocity), actions are one-hot int64
       (as :class:`~torchrl.envs.GymEnv` encodes a ``Discrete(3)`` space).
 
-    Resets may be partial: a ``"_reset"`` mask (what a
-    :class:`~torchrl.collectors.Collector` passes for the sub-envs that are done)
-    restarts only those copies. Start states are drawn from a CPU
-    :class:`torch.Generator` owned by the env, so a seed gives the same episodes
-    on every device.
+    Batching, partial resets, seeding and ``state_dict`` are those of
+    :class:`~torchrl_mbe.envs.batched.BatchedClassicControlEnv`.
 
     TorchRL's per-call overhead is the same for one copy or a thousand, which is
     why this env collects many times faster than a :class:`~torchrl.envs.SerialEnv`
     of ``GymEnv`` (see ``bench/throughput.py``).
 
     Args:
-        num_envs (int): number of copies; the env's ``batch_size`` is ``(num_envs,)``.
+        num_envs (int or tuple of int): number of copies (``batch_size`` ``(num_envs,)``), or the batch shape.
 
     Keyword Args:
         max_episode_steps (int): truncation horizon. Defaults to 200 (MountainCar-v0).
@@ -131,7 +128,7 @@ class BatchedMountainCarEnv(EnvBase):
         device (torch.device): where the env's tensors live. Defaults to CPU.
 
     Attributes:
-        physical_state (Tensor): the float64 ``(num_envs, 2)`` position and velocity
+        physical_state (Tensor): the float64 ``(*batch_size, 2)`` position and velocity
             the observations are rounded from.
 
     Examples:
@@ -146,91 +143,21 @@ class BatchedMountainCarEnv(EnvBase):
         True
     """
 
-    def __init__(
-        self,
-        num_envs: int,
-        *,
-        max_episode_steps: int = 200,
-        seed: int | None = None,
-        device: torch.device | str = "cpu",
-    ) -> None:
-        if int(num_envs) < 1 or int(max_episode_steps) < 1:
-            raise ValueError(
-                f"num_envs and max_episode_steps must be >= 1, got {num_envs} and {max_episode_steps}."
-            )
-        super().__init__(device=device, batch_size=(int(num_envs),))
-        self.max_episode_steps = int(max_episode_steps)
-        self._make_spec()
-        self.register_buffer(
-            "physical_state", torch.zeros(*self.batch_size, 2, dtype=torch.float64, device=self.device), persistent=False
-        )
-        self.register_buffer(
-            "elapsed_steps", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device), persistent=False
-        )
-        goal = torch.tensor([MOUNTAINCAR["goal_position"], 0.0], dtype=torch.float64, device=self.device)
-        self.register_buffer("goal_state", goal, persistent=False)
-        self._generator = torch.Generator()
-        if seed is None:
-            seed = int(torch.empty((), dtype=torch.int64).random_())
-        self.set_seed(seed)
+    num_actions = 3
+    state_size = 2
+    observation_low = (MOUNTAINCAR["min_position"], -MOUNTAINCAR["max_speed"])
+    observation_high = (MOUNTAINCAR["max_position"], MOUNTAINCAR["max_speed"])
+    default_max_episode_steps = 200  # MountainCar-v0's registration, gymnasium/envs/__init__.py
 
-    def _make_spec(self) -> None:
-        batch, device = self.batch_size, self.device
-        low = torch.tensor([MOUNTAINCAR["min_position"], -MOUNTAINCAR["max_speed"]])
-        high = torch.tensor([MOUNTAINCAR["max_position"], MOUNTAINCAR["max_speed"]])
-        self.observation_spec = Composite(
-            observation=Bounded(
-                low=low.expand(*batch, 2), high=high.expand(*batch, 2), dtype=torch.float32, device=device
-            ),
-            shape=batch,
-            device=device,
-        )
-        self.action_spec = OneHot(3, shape=(*batch, 3), dtype=torch.int64, device=device)
-        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=torch.float32, device=device)
-        flag = Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=device)
-        self.done_spec = Composite(
-            done=flag, terminated=flag.clone(), truncated=flag.clone(), shape=batch, device=device
-        )
-
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is None:
-            self._generator.seed()
-        else:
-            self._generator.manual_seed(int(seed))
-
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
-        reset = None if tensordict is None else tensordict.get("_reset", None)
+    def _initial_state(self) -> torch.Tensor:
         low, high = _START_POSITION_RANGE
         position = torch.rand(self.batch_size, generator=self._generator, dtype=torch.float64)
-        start = torch.stack([low + (high - low) * position, torch.zeros_like(position)], -1).to(self.device)
-        if reset is None:
-            self.physical_state.copy_(start)
-            self.elapsed_steps.zero_()
-        else:
-            reset = reset.reshape(self.batch_size)
-            self.physical_state.copy_(torch.where(reset.unsqueeze(-1), start, self.physical_state))
-            self.elapsed_steps.masked_fill_(reset, 0)
-        not_done = torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)
-        return self._output(not_done, not_done.clone())
+        return torch.stack([low + (high - low) * position, torch.zeros_like(position)], -1)
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action").argmax(-1)
-        self.physical_state.copy_(mountaincar_step(self.physical_state, action))
-        self.elapsed_steps.add_(1)
-        terminated = (self.physical_state >= self.goal_state).all(-1, keepdim=True)  # at the flag, not rolling back
-        truncated = (self.elapsed_steps >= self.max_episode_steps).unsqueeze(-1)
-        output = self._output(terminated, truncated)
-        output.set("reward", torch.full((*self.batch_size, 1), -1.0, device=self.device))
-        return output
-
-    def _output(self, terminated: torch.Tensor, truncated: torch.Tensor) -> TensorDictBase:
-        return TensorDict(
-            {
-                "observation": self.physical_state.to(torch.float32),
-                "done": terminated | truncated,
-                "terminated": terminated,
-                "truncated": truncated,
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+    def _transition(
+        self, state: torch.Tensor, action_index: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        next_state = mountaincar_step(state, action_index)
+        position, velocity = next_state.unbind(-1)
+        at_the_flag = (position >= MOUNTAINCAR["goal_position"]) & (velocity >= 0)  # not rolling back
+        return next_state, torch.full(self.batch_size, -1.0, device=self.device), at_the_flag
