@@ -1,0 +1,218 @@
+"""A population's DQN update against the same members updated one after another, and their replay sampling.
+
+    python bench/population.py              # about a minute on 2 cores
+    python bench/population.py --threads 2  # torch intra-op threads (default 1, as the app)
+
+For N = 1, 5, 20, 100 members and hidden layers 64x64 and 256x256 (MountainCar's
+sizes: 2 observations, 3 actions), one update is: sample 256 transitions per member,
+DQN loss (double DQN, smooth L1), backward, gradient clipping, fused Adam, target
+update. "population" is one update of all N members (``torchrl_mbe.modules.population``:
+``MultiAgentMLP``, ``PopulationDQNLoss``, per-member clipping, ``PopulationReplayBuffer``);
+"N singles" is N separate networks, each with its own TorchRL ``DQNLoss``, Adam,
+``HardUpdate`` and ``TensorDictReplayBuffer(LazyTensorStorage)``, updated in sequence:
+the work of N single runs. Speed-up is N singles' time over the population's; "vs N x one
+single" divides N times the first row's single update (MEMBERS starts at 1) instead: N
+networks updated in turn share the caches, so each is slower than a lone single run's.
+
+Every figure is the median over timed blocks (``time.perf_counter``) after untimed
+warm-up calls; the variants compared are timed in alternating blocks, so load changes
+hit them alike. A benchmark, not a test: it prints tables and asserts nothing.
+"""
+from __future__ import annotations
+
+import argparse
+import functools
+import logging
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable, Sequence
+
+import torch
+from tensordict import TensorDict
+from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
+from torchrl.modules import QValueActor
+from torchrl.objectives import DQNLoss, HardUpdate, LossModule
+
+from torchrl_mbe.modules.networks import make_per_action_mlp
+from torchrl_mbe.modules.population import (
+    PopulationDQNLoss,
+    PopulationReplayBuffer,
+    clip_grad_norm_per_member_,
+    make_population_q_actor,
+)
+
+OBSERVATION_SIZE = 2
+ACTION_SPEC = OneHot(3)
+BATCH_SIZE = 256
+CAPACITY = 10_000
+MEMBERS = (1, 5, 20, 100)
+HIDDEN_LAYERS = ((64, 64), (256, 256))
+MAX_GRAD_NORM = 10.0
+HARD_UPDATE_INTERVAL = 150  # conf/tuned/mountaincar_dqn.yaml
+REPEATS = 5
+MIN_BLOCK_S = 0.1
+LOSS_OPTIONS = {"delay_value": True, "double_dqn": True, "loss_function": "smooth_l1", "action_space": ACTION_SPEC}
+
+
+def transitions(num_rows: int, members: Sequence[int] = ()) -> TensorDict:
+    """Random MountainCar-shaped transitions, batch ``[num_rows, *members]``."""
+    shape = (num_rows, *members)
+    flags = torch.rand(*shape, 1) < 0.005
+    return TensorDict(
+        observation=torch.randn(*shape, OBSERVATION_SIZE),
+        action=ACTION_SPEC.rand(shape),
+        next=TensorDict(
+            observation=torch.randn(*shape, OBSERVATION_SIZE),
+            reward=-torch.ones(*shape, 1),
+            done=flags,
+            terminated=flags,
+            batch_size=shape,
+        ),
+        batch_size=shape,
+    )
+
+
+def torchrl_buffer(data: TensorDict) -> TensorDictReplayBuffer:
+    """TorchRL's uniform buffer as the app makes it (``compilable=True``), holding ``data``."""
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(CAPACITY, compilable=True), compilable=True)
+    buffer.extend(data)
+    return buffer
+
+
+def dqn_update(loss: LossModule, sample: Callable[[], TensorDict], clip: Callable[[list[torch.Tensor]], torch.Tensor]) -> Callable[[], None]:
+    """One update of ``loss`` on ``sample()``: loss, backward, ``clip``, fused Adam, hard target update."""
+    loss.make_value_estimator(gamma=0.99)
+    parameters = list(loss.parameters())
+    optimizer = torch.optim.Adam(parameters, lr=1e-3, fused=True)
+    target_updater = HardUpdate(loss, value_network_update_interval=HARD_UPDATE_INTERVAL)
+
+    def update() -> None:
+        batch = sample().exclude("index")
+        optimizer.zero_grad(set_to_none=True)
+        loss(batch)["loss"].backward()
+        clip(parameters)
+        optimizer.step()
+        target_updater.step()
+
+    return update
+
+
+def population_update(num_members: int, hidden: Sequence[int]) -> Callable[[], None]:
+    buffer = PopulationReplayBuffer(CAPACITY, num_members)
+    buffer.extend(transitions(CAPACITY, (num_members,)))
+    actor = make_population_q_actor(OBSERVATION_SIZE, ACTION_SPEC, hidden, num_members)
+    clip = functools.partial(clip_grad_norm_per_member_, max_norm=MAX_GRAD_NORM, num_members=num_members)
+    return dqn_update(PopulationDQNLoss(actor, **LOSS_OPTIONS), functools.partial(buffer.sample, BATCH_SIZE), clip)
+
+
+def single_update(hidden: Sequence[int]) -> Callable[[], None]:
+    buffer = torchrl_buffer(transitions(CAPACITY))
+    actor = QValueActor(make_per_action_mlp(OBSERVATION_SIZE, ACTION_SPEC, hidden), spec=ACTION_SPEC, in_keys=["observation"])
+    clip = functools.partial(torch.nn.utils.clip_grad_norm_, max_norm=MAX_GRAD_NORM)
+    return dqn_update(DQNLoss(actor, **LOSS_OPTIONS), functools.partial(buffer.sample, BATCH_SIZE), clip)
+
+
+def in_sequence(calls: list[Callable[[], object]]) -> Callable[[], None]:
+    def call_each() -> None:
+        for call in calls:
+            call()
+
+    return call_each
+
+
+def median_seconds(variants: dict[str, Callable[[], object]]) -> dict[str, float]:
+    """Median seconds per call of each variant, in alternating blocks of at least ``MIN_BLOCK_S`` after warm-up."""
+    calls_per_block = {}
+    for name, variant in variants.items():
+        variant()
+        start = time.perf_counter()
+        variant()
+        calls_per_block[name] = max(1, math.ceil(MIN_BLOCK_S / (time.perf_counter() - start)))
+    seconds = {name: [] for name in variants}
+    for _ in range(REPEATS):
+        for name, variant in variants.items():
+            start = time.perf_counter()
+            for _ in range(calls_per_block[name]):
+                variant()
+            seconds[name].append((time.perf_counter() - start) / calls_per_block[name])
+    return {name: statistics.median(values) for name, values in seconds.items()}
+
+
+def print_rows(title: str, header: Sequence[str], rows: list[Sequence[str]]) -> None:
+    widths = [max(len(cell) for cell in column) for column in zip(header, *rows)]
+    print(f"\n[{title}]")
+    for row in (header, *rows):
+        print("  " + "  ".join(cell.rjust(width) for cell, width in zip(row, widths)))
+
+
+def bench_updates() -> None:
+    rows = []
+    for hidden in HIDDEN_LAYERS:
+        lone_single_ms = None  # the N = 1 row's single network: a single run's update, without N networks sharing the caches
+        for num_members in MEMBERS:
+            seconds = median_seconds(
+                {
+                    "population": population_update(num_members, hidden),
+                    "singles": in_sequence([single_update(hidden) for _ in range(num_members)]),
+                }
+            )
+            population_ms, singles_ms = 1e3 * seconds["population"], 1e3 * seconds["singles"]
+            lone_single_ms = lone_single_ms or singles_ms / num_members
+            rows.append(
+                (
+                    "x".join(map(str, hidden)),
+                    str(num_members),
+                    f"{population_ms:.2f}",
+                    f"{population_ms / num_members:.3f}",
+                    f"{singles_ms:.2f}",
+                    f"{singles_ms / num_members:.3f}",
+                    f"{singles_ms / population_ms:.2f}x",
+                    f"{num_members * lone_single_ms / population_ms:.2f}x",
+                )
+            )
+    header = ("hidden", "N", "population ms", "ms/member", "N singles ms", "ms/member", "speed-up", "vs N x one single")
+    print_rows(f"update: sample {BATCH_SIZE} per member, DQN loss, backward, clip, fused Adam, target", header, rows)
+
+
+def bench_sampling() -> None:
+    rows = []
+    for num_members in MEMBERS:
+        data = transitions(CAPACITY, (num_members,))
+        population = PopulationReplayBuffer(CAPACITY, num_members)
+        population.extend(data)
+        separate = [torchrl_buffer(data[:, member].clone()) for member in range(num_members)]
+        shared_rows = torchrl_buffer(data)
+        seconds = median_seconds(
+            {
+                "population": functools.partial(population.sample, BATCH_SIZE),
+                "separate": in_sequence([functools.partial(buffer.sample, BATCH_SIZE) for buffer in separate]),
+                "shared rows": functools.partial(shared_rows.sample, BATCH_SIZE),
+            }
+        )
+        rows.append((str(num_members), *(f"{1e3 * seconds[name]:.3f}" for name in ("population", "separate", "shared rows"))))
+    header = ("N", "PopulationReplayBuffer", "N TorchRL buffers", "one TorchRL buffer, rows shared")
+    print_rows(f"sample: ms for {BATCH_SIZE} transitions per member, capacity {CAPACITY:,}", header, rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # one "Initialized LazyTensorStorage" line per buffer otherwise
+    torch.set_flush_denormal(True)  # as train(cfg) does
+    torch.manual_seed(0)
+    started = time.perf_counter()
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {os.cpu_count()} CPUs, "
+        f"1-minute load average {os.getloadavg()[0]:.2f} at start"
+    )
+    bench_sampling()
+    bench_updates()
+    print(f"\n{time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

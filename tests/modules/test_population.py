@@ -1,0 +1,270 @@
+"""Populations: members are independent, a member's update is a single network's, the buffer samples per member."""
+from __future__ import annotations
+
+import copy
+import io
+
+import pytest
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import OneHot
+from torchrl.modules import QValueActor
+from torchrl.objectives import DQNLoss, HardUpdate
+
+from torchrl_mbe.modules.networks import make_per_action_mlp
+from torchrl_mbe.modules.population import (
+    PopulationDQNLoss,
+    PopulationReplayBuffer,
+    clip_grad_norm_per_member_,
+    make_population_q_actor,
+)
+
+SPEC = OneHot(3)
+OBSERVATION_SIZE = 2
+NUM_CELLS = [16, 16]
+MAX_GRAD_NORM = 0.05  # small enough that every member is clipped
+CHANGED = 2  # the member whose data or parameters one copy changes
+
+
+class Learner:
+    """A loss with its fused Adam and hard target update: the whole update of a population or of one network."""
+
+    def __init__(self, loss: DQNLoss, clip) -> None:
+        self.loss = loss
+        self.clip = clip
+        self.optimizer = torch.optim.Adam(loss.parameters(), lr=1e-2, fused=True)
+        self.target_updater = HardUpdate(loss, value_network_update_interval=1)
+
+    def update(self, batch: TensorDictBase) -> TensorDict:
+        """One update; returns the loss's output with the gradient norm before clipping (``"grad_norm"``)."""
+        self.optimizer.zero_grad(set_to_none=True)
+        out = self.loss(batch)
+        out["loss"].backward()
+        out["grad_norm"] = self.clip(list(self.loss.parameters()))
+        self.optimizer.step()
+        self.target_updater.step()
+        return out
+
+
+def population_learner(num_members: int) -> Learner:
+    actor = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, num_members)
+    loss = PopulationDQNLoss(actor, delay_value=True, double_dqn=True, loss_function="smooth_l1", action_space=SPEC)
+    loss.make_value_estimator(gamma=0.99)
+    return Learner(loss, lambda parameters: clip_grad_norm_per_member_(parameters, MAX_GRAD_NORM, num_members))
+
+
+def single_learner(parameters: TensorDictBase) -> Learner:
+    """A single Q-network of the same architecture holding ``parameters`` (one member's slice)."""
+    network = make_per_action_mlp(OBSERVATION_SIZE, SPEC, NUM_CELLS)
+    network.load_state_dict(parameters.flatten_keys(".").to_dict())
+    actor = QValueActor(network, spec=SPEC, in_keys=["observation"])
+    loss = DQNLoss(actor, delay_value=True, double_dqn=True, loss_function="smooth_l1", action_space=SPEC)
+    loss.make_value_estimator(gamma=0.99)
+    return Learner(loss, lambda parameters: torch.nn.utils.clip_grad_norm_(parameters, MAX_GRAD_NORM))
+
+
+def member_parameters(learner: Learner) -> TensorDictBase:
+    """The population's online parameters, stacked ``[M, ...]`` (MultiAgentMLP's ``params``)."""
+    return learner.loss.value_network_params["module", "0", "module", "params"]
+
+
+def target_parameters(learner: Learner) -> TensorDictBase:
+    return learner.loss.target_value_network_params["module", "0", "module", "params"]
+
+
+def transitions(num_rows: int, num_members: int) -> TensorDict:
+    flags = torch.rand(num_rows, num_members, 1) < 0.1
+    return TensorDict(
+        observation=torch.randn(num_rows, num_members, OBSERVATION_SIZE),
+        action=SPEC.rand((num_rows, num_members)),
+        next=TensorDict(
+            observation=torch.randn(num_rows, num_members, OBSERVATION_SIZE),
+            reward=torch.randn(num_rows, num_members, 1),
+            done=flags,
+            terminated=flags,
+            batch_size=[num_rows, num_members],
+        ),
+        batch_size=[num_rows, num_members],
+    )
+
+
+def assert_members_equal(left: TensorDictBase, right: TensorDictBase, members, equal: bool) -> None:
+    for key, value in left.items(include_nested=True, leaves_only=True):
+        for member in members:
+            assert torch.equal(value[member], right[key][member]) is equal, (key, member)
+
+
+def run_updates(learner: Learner, batches: list[TensorDict]) -> None:
+    for batch in batches:
+        learner.update(batch.clone())
+
+
+def test_changing_one_members_data_leaves_every_other_members_update_unchanged():
+    learner = population_learner(4)
+    twin = Learner(copy.deepcopy(learner.loss), learner.clip)
+    batches = [transitions(32, 4) for _ in range(3)]
+    changed = [batch.clone() for batch in batches]
+    for batch in changed:
+        batch["observation"][:, CHANGED] += 1.0
+        batch["next", "reward"][:, CHANGED] *= 100.0  # a gradient far above the clip
+    run_updates(learner, batches)
+    run_updates(twin, changed)
+    others = [0, 1, 3]
+    assert_members_equal(member_parameters(learner), member_parameters(twin), others, equal=True)
+    assert_members_equal(target_parameters(learner), target_parameters(twin), others, equal=True)
+    assert_members_equal(member_parameters(learner), member_parameters(twin), [CHANGED], equal=False)
+
+
+def test_changing_one_members_parameters_leaves_every_other_members_update_unchanged():
+    learner = population_learner(4)
+    twin = Learner(copy.deepcopy(learner.loss), learner.clip)
+    with torch.no_grad():
+        for parameters in (member_parameters(twin), target_parameters(twin)):
+            for value in parameters.values(include_nested=True, leaves_only=True):
+                value[CHANGED] *= 3.0
+    batches = [transitions(32, 4) for _ in range(3)]
+    run_updates(learner, batches)
+    run_updates(twin, batches)
+    assert_members_equal(member_parameters(learner), member_parameters(twin), [0, 1, 3], equal=True)
+    assert_members_equal(target_parameters(learner), target_parameters(twin), [0, 1, 3], equal=True)
+
+
+def test_a_members_update_is_the_update_of_its_own_single_network():
+    population = population_learner(3)
+    singles = [single_learner(member_parameters(population)[member].detach().clone()) for member in range(3)]
+    batches = [transitions(32, 3) for _ in range(2)]
+    for batch in batches:
+        population_out = population.update(batch.clone())
+        for member, single in enumerate(singles):
+            single_out = single.update(batch[:, member].clone())
+            torch.testing.assert_close(population_out["member_loss"][member], single_out["loss"].detach())
+            torch.testing.assert_close(population_out["grad_norm"][member], single_out["grad_norm"], rtol=1e-4, atol=1e-7)
+    for member, single in enumerate(singles):
+        expected = single.loss.value_network_params["module", "0", "module"]
+        for key, value in member_parameters(population).items(include_nested=True, leaves_only=True):
+            torch.testing.assert_close(value.grad[member], expected[key].grad, rtol=1e-4, atol=1e-6)
+            torch.testing.assert_close(value[member], expected[key], rtol=1e-4, atol=1e-6)
+
+
+def test_a_population_of_one_starts_from_the_single_networks_weights():
+    torch.manual_seed(3)
+    population = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, 1)
+    torch.manual_seed(3)
+    single = make_per_action_mlp(OBSERVATION_SIZE, SPEC, NUM_CELLS)
+    stacked = population.module[0].params.flatten_keys(".")
+    for name, value in single.state_dict().items():
+        assert torch.equal(stacked[name][0], value), name
+
+
+def test_each_member_is_glorot_initialized_on_its_own_slice():
+    weight = make_population_q_actor(OBSERVATION_SIZE, SPEC, [64], 8).module[0].params["0", "weight"]  # [8, 64, 2]
+    bound = (6 / (OBSERVATION_SIZE + 64)) ** 0.5  # a member's fan-in and fan-out, not the stack's
+    assert weight.abs().max() <= bound
+    assert weight.abs().amax(dim=(1, 2)).min() > 0.8 * bound
+    assert not torch.equal(weight[0], weight[1])
+
+
+def gradients(num_members: int) -> list[torch.Tensor]:
+    parameters = [torch.zeros(num_members, 5, 3, requires_grad=True), torch.zeros(num_members, 5, requires_grad=True)]
+    for parameter in parameters:
+        parameter.grad = torch.randn_like(parameter)
+    return parameters
+
+
+def test_a_huge_gradient_in_one_member_does_not_shrink_the_others():
+    plain, huge = gradients(4), gradients(4)
+    for left, right in zip(plain, huge):
+        right.grad.copy_(left.grad)
+        right.grad[CHANGED] *= 1e6
+    clip_grad_norm_per_member_(plain, 1.0, 4)
+    norms = clip_grad_norm_per_member_(huge, 1.0, 4)
+    for left, right in zip(plain, huge):
+        for member in (0, 1, 3):
+            assert torch.equal(left.grad[member], right.grad[member])
+    assert norms[CHANGED] > 1e5
+    clipped = torch.stack([parameter.grad[CHANGED].norm() for parameter in huge]).norm()
+    torch.testing.assert_close(clipped, torch.tensor(1.0))
+
+
+def test_clipping_a_population_of_one_is_torchs_clipping():
+    population, single = gradients(1), gradients(1)
+    for left, right in zip(population, single):
+        right.grad.copy_(left.grad)
+    norms = clip_grad_norm_per_member_(population, 0.5, 1)
+    norm = torch.nn.utils.clip_grad_norm_(single, 0.5)
+    torch.testing.assert_close(norms, norm.view(1))
+    for left, right in zip(population, single):
+        torch.testing.assert_close(left.grad, right.grad)
+
+
+def test_clipping_refuses_a_parameter_without_a_member_dimension():
+    shared = torch.zeros(5, requires_grad=True)
+    with pytest.raises(ValueError, match="stacked over 4 members"):
+        clip_grad_norm_per_member_([*gradients(4), shared], 1.0, 4)
+
+
+def numbered(num_rows: int, num_members: int, start: int = 0) -> TensorDict:
+    """Row r of member m holds ``100 * (start + r) + m``: a sample says where it came from."""
+    rows = torch.arange(start, start + num_rows).view(-1, 1) * 100 + torch.arange(num_members)
+    done = (rows // 100 % 2 == 0).unsqueeze(-1)  # alternate rows
+    return TensorDict(x=rows.float().unsqueeze(-1), next=TensorDict(done=done), batch_size=[num_rows, num_members])
+
+
+def test_the_buffer_is_a_ring():
+    buffer = PopulationReplayBuffer(capacity=4, num_members=2)
+    assert buffer.extend(numbered(3, 2)).tolist() == [0, 1, 2]
+    assert len(buffer) == 3
+    assert buffer.extend(numbered(3, 2, start=3)).tolist() == [3, 0, 1]
+    assert len(buffer) == 4
+    assert buffer.state_dict()["storage"]["x"][:, 1, 0].tolist() == [401.0, 501.0, 201.0, 301.0]
+    assert buffer.extend(numbered(6, 2, start=6)).tolist() == [0, 1, 2, 3]  # the last 4 rows of 6, where they fall
+    assert buffer.state_dict()["storage"]["x"][:, 0, 0].tolist() == [800.0, 900.0, 1000.0, 1100.0]
+
+
+def test_each_member_samples_its_own_rows_with_its_own_indices():
+    buffer = PopulationReplayBuffer(capacity=50, num_members=3)
+    buffer.extend(numbered(50, 3))
+    torch.manual_seed(1)
+    sample = buffer.sample(64)
+    index = sample["index"]
+    assert sample.batch_size == (64, 3)
+    assert not torch.equal(index[:, 0], index[:, 1]) and not torch.equal(index[:, 1], index[:, 2])
+    torch.testing.assert_close(sample["x"].squeeze(-1), (index * 100 + torch.arange(3)).float())
+    assert torch.equal(sample["next", "done"].squeeze(-1), index % 2 == 0)
+
+
+def test_a_members_sample_depends_on_its_own_storage_only():
+    data = numbered(20, 4)
+    changed = data.clone()
+    changed["x"][:, CHANGED] = -1.0
+    samples = []
+    for stored in (data, changed):
+        buffer = PopulationReplayBuffer(capacity=20, num_members=4)
+        buffer.extend(stored)
+        torch.manual_seed(5)
+        samples.append(buffer.sample(32))
+    others = [0, 1, 3]
+    assert torch.equal(samples[0][:, others]["x"], samples[1][:, others]["x"])
+    assert (samples[1]["x"][:, CHANGED] == -1.0).all()
+
+
+def test_the_buffer_state_round_trips_through_torch_load_weights_only():
+    buffer = PopulationReplayBuffer(capacity=8, num_members=3)
+    buffer.extend(numbered(11, 3))
+    file = io.BytesIO()
+    torch.save(buffer.state_dict(), file)
+    file.seek(0)
+    restored = PopulationReplayBuffer(capacity=8, num_members=3)
+    restored.load_state_dict(torch.load(file, weights_only=True))
+    assert len(restored) == len(buffer)
+    for copy_ in (buffer, restored):
+        copy_.extend(numbered(2, 3, start=50))
+    torch.manual_seed(2)
+    expected = buffer.sample(16)
+    torch.manual_seed(2)
+    assert (restored.sample(16) == expected).all()
+
+
+def test_the_buffer_refuses_a_batch_without_the_member_dimension():
+    with pytest.raises(ValueError, match=r"\[\*N, 3\]"):
+        PopulationReplayBuffer(capacity=8, num_members=3).extend(numbered(4, 2))
