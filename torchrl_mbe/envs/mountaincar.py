@@ -18,7 +18,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
-from torchrl_mbe.modules.dynamics import action_indices, num_discrete_actions
+from torchrl_mbe.modules.actions import action_indices, num_discrete_actions
 
 __all__ = ["MOUNTAINCAR", "mountaincar_step", "MountainCarDynamics", "BatchedMountainCarEnv"]
 
