@@ -67,6 +67,46 @@ def test_normalization_refits_from_a_replay_buffer_and_travels_with_state_dict()
     torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
 
 
+def normalization(dynamics: DynamicsModel) -> list[torch.Tensor]:
+    return [dynamics.observation_norm.loc, dynamics.observation_norm.scale, dynamics.delta_norm.loc, dynamics.delta_norm.scale]
+
+
+def test_dynamics_loss_fits_a_fresh_model_on_the_first_batch_it_trains_on_and_the_flag_travels_with_state_dict():
+    dynamics = DynamicsModel(2, OneHot(3))
+    loss = DynamicsLoss(dynamics)
+    first = linear_transitions(64, OneHot(3))
+    first["observation"] = first["observation"] * 5 + 3
+    with torch.no_grad():
+        loss(first)  # a validation error, as the app measures on new frames: never fits
+    assert not dynamics.normalization_fitted
+    loss(first)["loss_dynamics"].backward()
+    expected = DynamicsModel(2, OneHot(3))
+    expected.fit_normalization(first)
+    assert dynamics.normalization_fitted
+    for fitted, reference in zip(normalization(dynamics), normalization(expected)):
+        torch.testing.assert_close(fitted, reference)
+    loss(linear_transitions(64, OneHot(3)))["loss_dynamics"].backward()  # later batches train, never refit
+    for fitted, reference in zip(normalization(dynamics), normalization(expected)):
+        torch.testing.assert_close(fitted, reference)
+    restored = DynamicsModel(2, OneHot(3))
+    restored.load_state_dict(dynamics.state_dict())
+    assert restored.normalization_fitted
+    older = {key: value for key, value in DynamicsModel(2, OneHot(3)).state_dict().items() if key != "_extra_state"}
+    restored.load_state_dict(older)  # saved before the flag existed: its statistics are kept as they are
+    assert restored.normalization_fitted
+
+
+def test_an_explicit_fit_is_what_training_starts_from():
+    buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(1000))
+    buffer.extend(linear_transitions(1000, OneHot(3)))
+    dynamics = DynamicsModel(2, OneHot(3))
+    dynamics.fit_normalization(buffer)  # as the app does before its first update
+    before = [statistic.clone() for statistic in normalization(dynamics)]
+    DynamicsLoss(dynamics)(buffer.sample(16))["loss_dynamics"].backward()
+    for statistic, fitted in zip(normalization(dynamics), before):
+        assert torch.equal(statistic, fitted)
+
+
 def test_a_dimension_that_never_moved_before_the_fit_does_not_blow_up_the_loss_when_it_does():
     early = linear_transitions(256, OneHot(3))
     early["observation"][:, 1] = 0.0  # a leg contact before the first touch: constant, and so is its delta

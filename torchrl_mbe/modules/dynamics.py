@@ -7,35 +7,33 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import nn
-from torchrl.data import Categorical, OneHot, ReplayBuffer, TensorSpec
+from torchrl.data import Composite, ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
+from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
 from torchrl_mbe.modules.networks import init_linear_layers
 from torchrl_mbe.modules.normalization import Standardize
 
-__all__ = ["DynamicsModel", "action_indices", "num_discrete_actions", "one_hot_actions"]
+__all__ = ["DynamicsModel", "action_indices", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
 
 
-def num_discrete_actions(action_spec: TensorSpec) -> int:
-    """Number of actions of a ``OneHot`` or ``Categorical`` spec; a clear error otherwise."""
-    if not isinstance(action_spec, (OneHot, Categorical)):
-        raise TypeError(
-            "Model-based exploration needs a discrete action spec (OneHot or Categorical), "
-            f"got {type(action_spec).__name__}."
-        )
-    return int(action_spec.space.n)
+def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
+    """The size of a flat observation: ``observation`` itself, or the last dimension of its spec.
 
-
-def action_indices(action: torch.Tensor, action_spec: TensorSpec) -> torch.Tensor:
-    """Integer action indices of actions encoded as ``action_spec`` encodes them."""
-    return action.long().argmax(-1) if isinstance(action_spec, OneHot) else action.long()
-
-
-def one_hot_actions(action: torch.Tensor, action_spec: TensorSpec) -> torch.Tensor:
-    """Float one-hot encoding of actions encoded as ``action_spec`` encodes them."""
-    if isinstance(action_spec, OneHot):
-        return action.float()
-    return nn.functional.one_hot(action.long(), num_discrete_actions(action_spec)).float()
+    A ``Composite`` (an env's ``observation_spec``) is read through its ``observation_key`` entry.
+    """
+    if isinstance(observation, Composite):
+        if observation_key not in observation.keys(include_nested=True):
+            raise ValueError(
+                f"Expected the observation size or a spec with an entry {observation_key!r} "
+                f"(e.g. env.observation_spec), got a Composite with keys {list(observation.keys(True, True))}."
+            )
+        observation = observation[observation_key]
+    if isinstance(observation, TensorSpec):
+        if not observation.shape:
+            raise ValueError(f"Expected a flat observation spec with a feature dimension, got shape {tuple(observation.shape)}.")
+        return int(observation.shape[-1])
+    return int(observation)
 
 
 class DynamicsModel(TensorDictModuleBase):
@@ -44,16 +42,22 @@ class DynamicsModel(TensorDictModuleBase):
     As in mbrl-lib, the network predicts the standardized state *delta*
     ``s' - s`` from the standardized observation and the one-hot action, and the
     delta is added back to ``s``. The statistics are buffers (saved beside the
-    weights in ``state_dict``), identity until :meth:`fit_normalization` refits
-    them from data or a replay buffer; refit before training, since a refit
-    changes what the network's outputs mean.
+    weights in ``state_dict``), identity until fitted: by :meth:`fit_normalization`
+    on data or a replay buffer, or else by :class:`~torchrl_mbe.DynamicsLoss` on the
+    first batch it trains on (as TorchRL's ``ObservationNorm`` can init its
+    statistics from data). Fit before training, since a refit changes what the
+    network's outputs mean; :attr:`normalization_fitted` says whether they are, and
+    travels with ``state_dict``.
     Defaults follow the paper's appendix: two hidden layers of 24 ReLU units with
     Glorot-uniform weights.
 
     Args:
-        observation_size (int): size of the (flat) observation vector.
-        action_spec (OneHot or Categorical): the env's action spec; it decides
-            how ``action`` is encoded in the input tensordict.
+        observation_size (int or TensorSpec): size of the (flat) observation
+            vector, or a spec it is read from: the observation's own spec, or a
+            ``Composite`` holding it under ``observation_key`` (``env.observation_spec``).
+        action_spec (OneHot, Categorical or Composite): the env's action spec, or a
+            ``Composite`` holding it under ``action_key`` (a ``QValueActor``'s ``spec``);
+            it decides how ``action`` is encoded in the input tensordict.
         num_cells (sequence of int): hidden layer sizes. Defaults to ``(24, 24)``.
 
     Keyword Args:
@@ -66,17 +70,20 @@ class DynamicsModel(TensorDictModuleBase):
     Examples:
         >>> import torch
         >>> from tensordict import TensorDict
-        >>> from torchrl.data import OneHot
+        >>> from torchrl.envs import GymEnv
         >>> from torchrl_mbe import DynamicsModel
-        >>> dynamics = DynamicsModel(observation_size=2, action_spec=OneHot(3))
-        >>> td = TensorDict({"observation": torch.zeros(5, 2), "action": OneHot(3).rand((5,))}, [5])
+        >>> env = GymEnv("MountainCar-v0")
+        >>> dynamics = DynamicsModel(env.observation_spec, env.action_spec)  # 2 features, 3 one-hot actions
+        >>> td = TensorDict({"observation": torch.zeros(5, 2), "action": env.action_spec.rand((5,))}, [5])
         >>> dynamics(td)["predicted_observation"].shape
         torch.Size([5, 2])
+        >>> dynamics.normalization_fitted
+        False
     """
 
     def __init__(
         self,
-        observation_size: int,
+        observation_size: int | TensorSpec,
         action_spec: TensorSpec,
         num_cells: Sequence[int] = (24, 24),
         *,
@@ -87,17 +94,18 @@ class DynamicsModel(TensorDictModuleBase):
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
-        if int(observation_size) < 1 or any(int(cells) < 1 for cells in num_cells):
+        observation_size = _observation_size(observation_size, observation_key)
+        if observation_size < 1 or any(int(cells) < 1 for cells in num_cells):
             raise ValueError(
                 f"observation_size and num_cells must be positive, got {observation_size} and {list(num_cells)}."
             )
         self.in_keys = [observation_key, action_key]
         self.out_keys = [out_key]
-        self.action_spec = action_spec
-        num_actions = num_discrete_actions(action_spec)
+        self.action_spec = discrete_action_spec(action_spec, action_key)
+        self.observation_size = observation_size
         self.net = init_linear_layers(
             MLP(
-                in_features=observation_size + num_actions,
+                in_features=observation_size + num_discrete_actions(self.action_spec),
                 out_features=observation_size,
                 num_cells=list(num_cells),
                 activation_class=activation_class,
@@ -106,6 +114,7 @@ class DynamicsModel(TensorDictModuleBase):
         )
         self.observation_norm = Standardize(observation_size, device=device)
         self.delta_norm = Standardize(observation_size, device=device)
+        self.normalization_fitted = False
 
     @property
     def delta_scale(self) -> torch.Tensor:
@@ -147,3 +156,17 @@ class DynamicsModel(TensorDictModuleBase):
         observation = data.get(self.in_keys[0])
         self.observation_norm.fit(observation, min_scale)
         self.delta_norm.fit(data.get(next_observation_key) - observation, min_scale)
+        self.normalization_fitted = True
+
+    def get_extra_state(self) -> dict:
+        # A Python flag, not a buffer: reading it costs no device sync, and torch.compile guards on it
+        # instead of breaking the graph on a data-dependent branch.
+        return {"normalization_fitted": self.normalization_fitted}
+
+    def set_extra_state(self, state: dict) -> None:
+        self.normalization_fitted = bool(state["normalization_fitted"])
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
+        # A state_dict saved before the flag existed: keep its statistics as they are (never auto-refit a trained model).
+        state_dict.setdefault(prefix + "_extra_state", {"normalization_fitted": True})
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

@@ -3,7 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tensordict import NestedKey, TensorDict, TensorDictBase
+import torch
+from tensordict import NestedKey, TensorDict, TensorDictBase, unravel_key
 from tensordict.nn import TensorDictModuleBase
 from torchrl.objectives import LossModule
 
@@ -25,6 +26,13 @@ class DynamicsLoss(LossModule):
     ``loss_dynamics`` is that normalized MSE and ``mse_dynamics`` (detached) the
     raw one, in observation units.
 
+    A module with a ``fit_normalization`` method whose ``normalization_fitted`` is
+    ``False`` (a fresh :class:`~torchrl_mbe.DynamicsModel`) has its statistics fitted
+    on the first batch this loss is called on with gradients enabled, that is, the
+    first it trains on; calls under ``torch.no_grad()`` (validation errors) never fit.
+    Start training after a few hundred frames, as any DQN's learning start, or call
+    ``fit_normalization`` yourself on more data first.
+
     Args:
         dynamics (TensorDictModuleBase): the dynamics network.
 
@@ -43,6 +51,8 @@ class DynamicsLoss(LossModule):
         ...     ("next", "observation"): torch.randn(8, 2)}, [8])
         >>> sorted(loss(batch).keys())
         ['loss_dynamics', 'mse_dynamics']
+        >>> loss.dynamics.normalization_fitted  # fitted on that first batch
+        True
         >>> loss.set_keys(observation="obs")  # read the batch's "obs" instead
     """
 
@@ -89,8 +99,12 @@ class DynamicsLoss(LossModule):
             {observation_key: tensordict.get(keys.observation), action_key: tensordict.get(keys.action)},
             batch_size=tensordict.batch_size,
         )
+        next_observation = tensordict.get(keys.next_observation)
+        if torch.is_grad_enabled() and getattr(self.dynamics, "normalization_fitted", True) is False:
+            next_key = unravel_key(("next", observation_key))
+            self.dynamics.fit_normalization(inputs.copy().set(next_key, next_observation), next_observation_key=next_key)
         prediction = self.dynamics(inputs).get(self.dynamics.out_keys[0])
-        error = prediction - tensordict.get(keys.next_observation)
+        error = prediction - next_observation
         scale = getattr(self.dynamics, "delta_scale", None) if self.normalize else None
         normalized_error = error if scale is None else error / scale
         return TensorDict(
