@@ -1,14 +1,17 @@
 from __future__ import annotations
 
+import copy
+
 import pytest
 import torch
 from dynamics_doubles import ShiftDynamics
 from tensordict import TensorDict
 from torchrl.collectors import Collector
-from torchrl.envs import ExplorationType, SerialEnv, set_exploration_type
+from torchrl.envs import ExplorationType, GymEnv, SerialEnv, set_exploration_type
 from torchrl.modules import MLP, QValueActor
 
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
+from torchrl_mbe.modules.exploration import check_eps_schedule
 
 SHIFTS = torch.tensor([[-0.1, 0.0], [0.0, 0.0], [0.5, 0.5]])
 
@@ -121,9 +124,13 @@ def test_warm_up_takes_random_actions_until_the_model_is_trusted(env):
         ({"schedule": "exponential", "eps_end": 0.0}, "eps_end > 0"),
     ],
 )
-def test_bad_schedules_are_rejected(env, kwargs, message):
+def test_bad_schedules_are_rejected_with_one_line(env, kwargs, message):
     with pytest.raises(ValueError, match=message):
         build_policy(env, **kwargs)
+    schedule = {"eps_init": 1.0, "eps_end": 0.01, "annealing_num_steps": 100, "schedule": "linear", **kwargs}
+    with pytest.raises(ValueError, match=message) as error:
+        check_eps_schedule(**schedule)
+    assert "\n" not in str(error.value)
 
 
 def test_a_collector_feeds_the_window_only_the_states_it_visits():
@@ -138,3 +145,65 @@ def test_a_collector_feeds_the_window_only_the_states_it_visits():
     assert int(planner.novelty.num_seen) == batch.shape[-1] == 2
     assert torch.equal(planner.novelty.window_states(), batch["observation"])
     collector.shutdown()
+
+
+def test_the_components_take_the_composite_spec_egreedy_takes_and_read_the_sizes_from_the_specs():
+    env = GymEnv("MountainCar-v0")
+    actor = QValueActor(MLP(out_features=3, num_cells=[8]), spec=env.action_spec, in_keys=["observation"])
+    dynamics = DynamicsModel(env.observation_spec, actor.spec)  # Composite(observation=...), Composite(action=...)
+    planner = NoveltyPlanner(dynamics, RollingGaussianDensity(window=50), actor.spec)
+    policy = ModelBasedExplorationPolicy(actor, planner)
+    rollout = env.rollout(10, policy)
+    assert dynamics.observation_size == 2 and planner.num_actions == 3
+    assert torch.equal(rollout["action"].sum(-1), torch.ones(10, dtype=rollout["action"].dtype))  # one-hot, as the env's
+    assert planner.novelty.num_stored == 10
+    with pytest.raises(ValueError, match="entry 'observation'.*env.observation_spec") as error:
+        DynamicsModel(actor.spec, actor.spec)
+    assert "\n" not in str(error.value)
+    with pytest.raises(ValueError, match="entry 'action'"):
+        NoveltyPlanner(dynamics, RollingGaussianDensity(window=50), env.observation_spec)
+
+
+def step_both(policies, td):
+    """Each policy acts on ``td`` from the same random state; their actions."""
+    state = torch.get_rng_state()
+    actions = []
+    for policy in policies:
+        torch.set_rng_state(state)
+        actions.append(policy(td.clone())["action"])
+    return actions
+
+
+def test_the_policy_compiles_with_fullgraph_and_acts_as_the_eager_one():
+    # torch.compile(policy, fullgraph=True) is what a Collector's compile_policy does (backend aside: the default,
+    # inductor, takes a minute here; test_a_collector_runs_the_policy_compiled covers it).
+    env = make_env("mountaincar", num_envs=4, seed=0)
+    eager = build_policy(env, window=8, batch_shape=(4,), eps_init=0.5, eps_end=0.5, model_error_threshold=0.1)
+    twin = copy.deepcopy(eager)
+    compiled = torch.compile(twin, fullgraph=True, backend="aot_eager")
+    td = env.reset()
+    for step in range(16):  # the window fills (8 states), then wraps
+        if step == 4:
+            assert eager.report_model_error(0.0) and twin.report_model_error(0.0)
+        eager_action, compiled_action = step_both([eager, compiled], td)
+        if step >= 4:  # both plan: same draws, same actions (before, each draws its random actions its own way)
+            assert torch.equal(compiled_action, eager_action)
+        _, td = env.step_and_maybe_reset(td.set("action", eager_action))
+    assert int(twin.novelty.num_seen) == int(eager.novelty.num_seen) == 16
+    assert torch.equal(twin.novelty.states, eager.novelty.states)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        assert torch.equal(compiled(td.clone())["action"], eager.actor(td.clone())["action"])
+    assert int(twin.novelty.num_seen) == 16  # evaluation leaves the window alone
+
+
+@pytest.mark.slow
+def test_a_collector_runs_the_policy_compiled():
+    env = make_env("mountaincar", num_envs=4, seed=0)
+    policy = build_policy(env, window=50, batch_shape=(4,))
+    collector = Collector(env, policy, frames_per_batch=32, total_frames=96, compile_policy={"fullgraph": True})
+    batches = [batch for batch in collector]
+    collector.update_policy_weights_()
+    collector.shutdown()
+    observations = torch.cat([batch["observation"] for batch in batches], 1)
+    # The compiled wrapper hides the policy's spec, so the Collector probes the policy once on the first observation
+    torch.testing.assert_close(policy.novelty.window_states(), torch.cat([observations[:, :1], observations], 1))

@@ -171,6 +171,19 @@ def test_scorers_infer_the_state_size_from_the_first_update_and_restore_into_a_f
 
 
 @pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
+def test_every_scorer_compiles_with_fullgraph_and_scores_as_it_does_eagerly(scorer_cls):
+    scorer = scorer_cls(2, window=6, batch_shape=(3,))
+    compiled_score = torch.compile(scorer.score, fullgraph=True, backend="aot_eager")
+    queries = torch.randn(4, 3, 2)
+    for visits in (0, 2, 4, 3):  # empty, 2 of 6 slots (fewer than KNearestNovelty's k), 6, wrapped round
+        scorer.update(torch.randn(visits, 3, 2))
+        eager = scorer.score(queries)  # first: a compiled score refits the Gaussian its own way
+        torch.testing.assert_close(compiled_score(queries), eager, rtol=1e-5, atol=1e-5)
+    scorer.reset()
+    assert torch.equal(compiled_score(queries), torch.zeros(4, 3))
+
+
+@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
 def test_every_scorer_keeps_one_window_per_env_through_a_collector_with_batched_envs(scorer_cls):
     from torchrl.collectors import Collector
     from torchrl.modules import MLP, QValueActor

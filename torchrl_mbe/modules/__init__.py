@@ -1,6 +1,6 @@
 """TorchRL modules: novelty scorers, the dynamics model, the planner and the exploration policies."""
 from torchrl_mbe.modules.dynamics import DynamicsModel
-from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
+from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy, check_eps_schedule
 from torchrl_mbe.modules.networks import init_linear_layers, make_per_action_mlp
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.novelty import (
@@ -25,6 +25,7 @@ __all__ = [
     "RollingGaussianDensity",
     "RollingWindowNovelty",
     "Standardize",
+    "check_eps_schedule",
     "init_linear_layers",
     "make_per_action_mlp",
 ]

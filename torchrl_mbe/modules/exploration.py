@@ -13,7 +13,7 @@ from torchrl.modules import EGreedyModule
 
 from torchrl_mbe.modules.planner import NoveltyPlanner
 
-__all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy"]
+__all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy", "check_eps_schedule"]
 
 
 class AnnealedEGreedyModule(EGreedyModule):
@@ -56,7 +56,7 @@ class AnnealedEGreedyModule(EGreedyModule):
         action_key: NestedKey = "action",
         device: torch.device | str | None = None,
     ) -> None:
-        _check_schedule(eps_init, eps_end, annealing_num_steps, schedule)
+        check_eps_schedule(eps_init, eps_end, annealing_num_steps, schedule)
         super().__init__(
             spec, float(eps_init), float(eps_end), int(annealing_num_steps), action_key=action_key, device=device
         )
@@ -87,16 +87,20 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
       :meth:`step` anneals it, linearly (as ``EGreedyModule``) or multiplicatively
       (the paper: ``eps *= 0.9995`` per step);
     * every visited observation is pushed into the planner's novelty window before
-      planning, so after a rollout the window holds the last F visited states.
+      planning, so after a rollout the window holds the last F visited states;
+    * it compiles with ``torch.compile(policy, fullgraph=True)``, as a Collector's
+      ``compile_policy`` compiles it (there it decides without data-dependent
+      branches; eagerly it draws the random numbers it always drew).
 
     Optional warm-up (the original code only trusted its model once the prediction
     error fell below a threshold): with ``model_error_threshold`` set, exploring
     steps take uniformly random actions until :meth:`report_model_error` receives an
     error at or below the threshold; from then on the planner decides.
 
-    Keep the policy on the collector's device: a :class:`~torchrl.collectors.Collector`
-    that has to move the policy works on a copy and syncs buffers from this module,
-    which would overwrite the window the copy filled.
+    Keep the policy on the collector's policy device (``policy_device``): a
+    :class:`~torchrl.collectors.Collector` that has to move the policy works on a
+    copy and syncs buffers from this module, which would overwrite the window the
+    copy filled.
 
     Args:
         actor (TensorDictModuleBase): greedy actor, e.g. :class:`~torchrl.modules.QValueActor`.
@@ -178,18 +182,34 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
             return tensordict
         self.novelty.update(tensordict.get(self.observation_key))
         explore = torch.rand(tensordict.batch_size, device=self.eps.device) < self.eps
-        if explore.any():
+        if torch.compiler.is_compiling() or explore.any():  # compiled: no data-dependent branch
             greedy = tensordict.get(self.action_key)
             exploring = self._exploring_action(tensordict).to(greedy.dtype)
             tensordict.set(self.action_key, torch.where(expand_as_right(explore, greedy), exploring, greedy))
         return tensordict
 
     def _exploring_action(self, tensordict: TensorDictBase) -> torch.Tensor:
-        candidates = self.planner.candidate_actions
-        if not self.model_trusted:
-            return candidates[torch.randint(len(candidates), tensordict.batch_size, device=candidates.device)]
-        action, _ = self.planner.plan(tensordict.get(self.observation_key))
+        """The planner's action once the model is trusted, a uniformly random one before.
+
+        Eagerly, only the one needed is drawn, so torch's random stream is what it
+        always was. Compiled (``torch.compile(fullgraph=True)``, as a Collector's
+        ``compile_policy`` does), both are computed and selected without branching,
+        the planner's draws first: from the same random state, a trusted model's
+        compiled actions are the eager ones.
+        """
+        observation = tensordict.get(self.observation_key)
+        if not torch.compiler.is_compiling():
+            return self._planned_action(observation) if self.model_trusted else self._random_action(tensordict)
+        planned, random = self._planned_action(observation), self._random_action(tensordict)
+        return torch.where(self.model_trusted, planned, random)
+
+    def _planned_action(self, observation: torch.Tensor) -> torch.Tensor:
+        action, _ = self.planner.plan(observation)
         return action
+
+    def _random_action(self, tensordict: TensorDictBase) -> torch.Tensor:
+        planner = self.planner
+        return planner.actions_at(torch.randint(planner.num_actions, tensordict.batch_size, device=planner.candidate_actions.device))
 
 
 def _complete_output_spec(actor: TensorDictModuleBase, planner: NoveltyPlanner, action_key: NestedKey) -> Composite:
@@ -212,7 +232,17 @@ def _complete_output_spec(actor: TensorDictModuleBase, planner: NoveltyPlanner, 
     return spec
 
 
-def _check_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, schedule: str) -> None:
+def check_eps_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, schedule: str) -> None:
+    """Raises a one-line ``ValueError`` unless the values make an eps schedule :class:`AnnealedEGreedyModule` can run.
+
+    Examples:
+        >>> from torchrl_mbe.modules.exploration import check_eps_schedule
+        >>> check_eps_schedule(1.0, 0.01, 9209, "exponential")
+        >>> check_eps_schedule(1.0, 0.0, 9209, "exponential")
+        Traceback (most recent call last):
+        ...
+        ValueError: The exponential schedule needs eps_end > 0 (it decays multiplicatively), got eps_end=0.0.
+    """
     if not 0.0 <= eps_end <= eps_init <= 1.0:
         raise ValueError(f"Expected 0 <= eps_end <= eps_init <= 1, got eps_init={eps_init}, eps_end={eps_end}.")
     if int(annealing_num_steps) < 1:
@@ -220,5 +250,4 @@ def _check_schedule(eps_init: float, eps_end: float, annealing_num_steps: int, s
     if schedule not in ("linear", "exponential"):
         raise ValueError(f"schedule must be 'linear' or 'exponential', got {schedule!r}.")
     if schedule == "exponential" and eps_end <= 0.0:
-        raise ValueError("The exponential schedule needs eps_end > 0 (it decays multiplicatively).")
-
+        raise ValueError(f"The exponential schedule needs eps_end > 0 (it decays multiplicatively), got eps_end={eps_end}.")

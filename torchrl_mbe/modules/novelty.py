@@ -8,6 +8,11 @@ Shapes follow :mod:`torch.distributions`: a scorer built with
 a batched env) and accepts states of shape ``(*sample_shape, B, num_features)``.
 With the default ``batch_shape=()`` one window is shared and any leading
 dimensions are sample dimensions.
+
+Every scorer here also runs under ``torch.compile(fullgraph=True)`` (a
+Collector's ``compile_policy``): compiled, it scores against the whole window
+with its empty slots masked out, since no shape may depend on how many states
+are stored; eagerly it reads exactly the stored states.
 """
 from __future__ import annotations
 
@@ -38,7 +43,8 @@ class RollingWindowNovelty(nn.Module):
     the window without scoring (greedy steps of an epsilon-greedy policy) cost
     no fit. The window, its write counter, the ``fit_stale`` flag and anything
     ``_refit`` caches are buffers: they travel together with ``state_dict``,
-    ``.to(device)`` and collector weight sync.
+    ``.to(device)`` and collector weight sync. Compiled code cannot branch on
+    ``fit_stale``: there the fit runs at every score.
 
     Args:
         num_features (int, optional): size of a state vector; inferred from the
@@ -92,6 +98,26 @@ class RollingWindowNovelty(nn.Module):
         order = torch.arange(seen - stored, seen, device=self.states.device) % self.window
         return self.states[..., order, :]
 
+    def _scored_window(self) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The states to score against, and which of them count (``None``: all).
+
+        Eagerly, :meth:`window_states`. Compiled, every slot of the window and the
+        mask of those that hold a state (slots fill from the first one up).
+        """
+        if not torch.compiler.is_compiling():
+            return self.window_states(), None
+        return self.states, torch.arange(self.window, device=self.num_seen.device) < self.num_seen
+
+    def _empty_eagerly(self) -> bool:
+        """Whether the window is empty, answered only eagerly: compiled scorers compute, then :meth:`_zeros_while_empty`."""
+        return not torch.compiler.is_compiling() and self.num_stored == 0
+
+    def _zeros_while_empty(self, scores: torch.Tensor) -> torch.Tensor:
+        """``scores``, or zeros while the window is empty (a no-op eagerly, where scorers return zeros early)."""
+        if not torch.compiler.is_compiling():
+            return scores
+        return torch.where(self.num_seen > 0, scores, torch.zeros_like(scores))
+
     @torch.no_grad()
     def update(self, states: torch.Tensor) -> None:
         """Pushes visited states, oldest first, into the window.
@@ -105,8 +131,7 @@ class RollingWindowNovelty(nn.Module):
             self._allocate(states.shape[-1])
         states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
         states = states[-self.window :].to(self.states)
-        seen = int(self.num_seen)
-        slots = torch.arange(seen, seen + states.shape[0], device=self.states.device) % self.window
+        slots = (self.num_seen + torch.arange(states.shape[0], device=self.states.device)) % self.window
         self.states[..., slots, :] = states.movedim(0, -2)
         self.num_seen.add_(states.shape[0])
         self.fit_stale.fill_(True)
@@ -121,8 +146,8 @@ class RollingWindowNovelty(nn.Module):
         raise NotImplementedError
 
     def _refit_if_stale(self) -> None:
-        """Runs :meth:`_refit` if the window changed since the last fit."""
-        if self.fit_stale:
+        """Runs :meth:`_refit` if the window changed since the last fit (always, when compiled)."""
+        if torch.compiler.is_compiling() or self.fit_stale:
             self._refit()
             self.fit_stale.fill_(False)
 
@@ -230,14 +255,14 @@ class RollingGaussianDensity(RollingWindowNovelty):
 
     def log_prob(self, states: torch.Tensor) -> torch.Tensor:
         """``log N(s | mu_F, Sigma_F)`` per state; zeros while the window is empty."""
-        if self.num_stored == 0:
+        if self._empty_eagerly():
             return states.new_zeros(states.shape[:-1])
         states = self._check_shape(states)
         self._refit_if_stale()
         centered = states.to(self.loc) - self.loc
         whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
         mahalanobis = whitened.square().sum(-1)
-        return (-0.5 * mahalanobis - self.log_normalizer).to(states.dtype)
+        return self._zeros_while_empty((-0.5 * mahalanobis - self.log_normalizer).to(states.dtype))
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """``-log_prob(states)``: higher = rarer."""
@@ -249,12 +274,19 @@ class RollingGaussianDensity(RollingWindowNovelty):
 
     def _refit(self) -> None:
         """Mean, whitening matrix and normalizer of the window; slot order is fine, the fit ignores order."""
-        stored = self.states[..., : self.num_stored, :].to(torch.float64)
-        if stored.shape[-2] == 0:
-            return
-        loc = stored.mean(-2)
-        centered = stored - loc.unsqueeze(-2)
-        covariance = centered.mT @ centered / max(stored.shape[-2] - 1, 1)
+        if not torch.compiler.is_compiling():
+            stored = self.states[..., : self.num_stored, :].to(torch.float64)
+            if stored.shape[-2] == 0:
+                return
+            loc = stored.mean(-2)
+            centered = stored - loc.unsqueeze(-2)
+            covariance = centered.mT @ centered / max(stored.shape[-2] - 1, 1)
+        else:  # every slot, the empty ones weighing nothing (an empty window fits zeros, which no score reads)
+            stored, filled = self._scored_window()
+            stored, weights, count = stored.to(torch.float64), filled.to(torch.float64).unsqueeze(-1), filled.sum()
+            loc = (stored * weights).sum(-2) / count.clamp_min(1)
+            centered = (stored - loc.unsqueeze(-2)) * weights
+            covariance = centered.mT @ centered / (count - 1).clamp_min(1)
         std = covariance.diagonal(dim1=-2, dim2=-1).clamp_min(self.min_variance).sqrt()
         eigenvalues, eigenvectors = torch.linalg.eigh(self._correlation(covariance, std))
         eigenvalues = eigenvalues.clamp_min(self.min_correlation_eigenvalue)
@@ -323,9 +355,10 @@ class GaussianKernelNovelty(RollingWindowNovelty):
         if self.num_features is None:
             return states.new_zeros(states.shape[:-1])
         states = self._check_shape(states)
-        stored = self.window_states()
+        stored, filled = self._scored_window()
         scaled_distance = (states.unsqueeze(-2) - stored) / self.bandwidth
-        return -torch.exp(-0.5 * scaled_distance.square().sum(-1)).sum(-1)
+        kernels = torch.exp(-0.5 * scaled_distance.square().sum(-1))
+        return -(kernels if filled is None else kernels * filled).sum(-1)
 
 
 class DiagonalGaussianDensity(RollingGaussianDensity):
@@ -350,13 +383,22 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         return torch.eye(self.num_features, dtype=covariance.dtype, device=covariance.device).expand_as(covariance)
 
 
-def _offsets_in_window_spreads(states: torch.Tensor, stored: torch.Tensor, min_scale: float) -> tuple[torch.Tensor, torch.Tensor]:
+def _offsets_in_window_spreads(
+    states: torch.Tensor, stored: torch.Tensor, filled: torch.Tensor | None, min_scale: float
+) -> tuple[torch.Tensor, torch.Tensor]:
     """``(s - s_i) / sigma`` for every state and stored state, ``(..., N, D)``, and ``sigma``.
 
-    ``sigma`` is the window's spread in each dimension, floored at ``min_scale``:
-    the scale-free distances of :class:`KNearestNovelty` and :class:`KernelDensityNovelty`.
+    ``sigma`` is the window's spread in each dimension (over the ``filled`` slots
+    only, unless ``None``), floored at ``min_scale``: the scale-free distances of
+    :class:`KNearestNovelty` and :class:`KernelDensityNovelty`.
     """
-    spread = stored.std(-2, correction=0, keepdim=True).clamp_min(min_scale)
+    if filled is None:
+        spread = stored.std(-2, correction=0, keepdim=True)
+    else:
+        weights, count = filled.to(stored).unsqueeze(-1), filled.sum().clamp_min(1)
+        mean = (stored * weights).sum(-2, keepdim=True) / count
+        spread = (((stored - mean) * weights).square().sum(-2, keepdim=True) / count).sqrt()
+    spread = spread.clamp_min(min_scale)
     return (states.unsqueeze(-2) - stored) / spread, spread
 
 
@@ -407,11 +449,16 @@ class KNearestNovelty(RollingWindowNovelty):
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """Mean scaled distance to the ``k`` nearest stored states: higher = rarer; zeros while the window is empty."""
-        if self.num_stored == 0:
+        if self._empty_eagerly():
             return states.new_zeros(states.shape[:-1])
-        offsets, _ = _offsets_in_window_spreads(self._check_shape(states), self.window_states(), self.min_scale)
+        stored, filled = self._scored_window()
+        offsets, _ = _offsets_in_window_spreads(self._check_shape(states), stored, filled, self.min_scale)
         distances = offsets.norm(dim=-1)
-        return distances.topk(min(self.k, self.num_stored), dim=-1, largest=False).values.mean(-1)
+        if filled is None:
+            return distances.topk(min(self.k, self.num_stored), dim=-1, largest=False).values.mean(-1)
+        nearest = distances.masked_fill(~filled, torch.inf).topk(min(self.k, self.window), dim=-1, largest=False).values
+        counted = nearest.isfinite()  # min(k, num_stored) of them
+        return self._zeros_while_empty(nearest.where(counted, 0.0).sum(-1) / counted.sum(-1).clamp_min(1))
 
 
 class KernelDensityNovelty(RollingWindowNovelty):
@@ -458,11 +505,20 @@ class KernelDensityNovelty(RollingWindowNovelty):
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """``-log`` of the kernel density at each state: higher = rarer; zeros while the window is empty."""
-        if self.num_stored == 0:
+        if self._empty_eagerly():
             return states.new_zeros(states.shape[:-1])
-        offsets, spread = _offsets_in_window_spreads(self._check_shape(states), self.window_states(), self.min_scale)
-        count, dims = self.num_stored, self.num_features
+        stored, filled = self._scored_window()
+        offsets, spread = _offsets_in_window_spreads(self._check_shape(states), stored, filled, self.min_scale)
+        dims = self.num_features
+        count = self.num_stored if filled is None else filled.sum().clamp_min(1).to(offsets)
         scott = count ** (-1.0 / (dims + 4))  # bandwidth = spread * scott
-        log_bandwidths = spread.log().sum(-1) + dims * math.log(scott)
+        log_bandwidths = spread.log().sum(-1) + dims * _log(scott)
         log_kernels = -0.5 * (offsets / scott).square().sum(-1) - log_bandwidths - 0.5 * dims * math.log(2 * math.pi)
-        return -(torch.logsumexp(log_kernels, dim=-1) - math.log(count))
+        if filled is not None:
+            log_kernels = log_kernels.masked_fill(~filled, -torch.inf)
+        return self._zeros_while_empty(-(torch.logsumexp(log_kernels, dim=-1) - _log(count)))
+
+
+def _log(value: float | torch.Tensor) -> float | torch.Tensor:
+    """``math.log`` of a count (eager scorers), ``torch.log`` of a tensor one (compiled scorers)."""
+    return torch.log(value) if isinstance(value, torch.Tensor) else math.log(value)

@@ -6,7 +6,7 @@ from tensordict import NestedKey, TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.data import OneHot, TensorSpec
 
-from torchrl_mbe.modules.dynamics import num_discrete_actions
+from torchrl_mbe.modules.actions import discrete_action_spec, num_discrete_actions
 from torchrl_mbe.modules.novelty import RollingWindowNovelty
 
 __all__ = ["NoveltyPlanner", "random_argmax"]
@@ -42,7 +42,9 @@ class NoveltyPlanner(TensorDictModuleBase):
         dynamics (TensorDictModuleBase): reads ``(observation, action)`` (its
             ``in_keys``) and writes one predicted observation.
         novelty (RollingWindowNovelty): scorer with ``score(states)``, higher = rarer.
-        action_spec (OneHot or Categorical): decides how actions are encoded.
+        action_spec (OneHot, Categorical or Composite): decides how actions are
+            encoded; a ``Composite`` (a ``QValueActor``'s ``spec``) is read through
+            its ``action_key`` entry, as ``EGreedyModule`` reads it.
         horizon (int): planning depth. Defaults to 1 (the paper).
 
     Keyword Args:
@@ -79,7 +81,7 @@ class NoveltyPlanner(TensorDictModuleBase):
             raise ValueError(f"horizon and max_sequences must be >= 1, got {horizon} and {max_sequences}.")
         self.dynamics = dynamics
         self.novelty = novelty
-        self.action_spec = action_spec
+        self.action_spec = action_spec = discrete_action_spec(action_spec, action_key)
         self.horizon = int(horizon)
         self.num_actions = num_discrete_actions(action_spec)
         self.max_sequences = max(int(max_sequences), self.num_actions)
@@ -121,7 +123,22 @@ class NoveltyPlanner(TensorDictModuleBase):
             True
         """
         scores = self.action_scores(observation)
-        return self.candidate_actions[random_argmax(scores)], scores
+        return self.actions_at(random_argmax(scores)), scores
+
+    def actions_at(self, index: torch.Tensor) -> torch.Tensor:
+        """The actions of integer ``index`` (any shape), in the spec's encoding, shape ``(*index.shape, *action_shape)``.
+
+        Examples:
+            >>> import torch
+            >>> from torchrl.data import OneHot
+            >>> from torchrl_mbe import DynamicsModel, NoveltyPlanner, RollingGaussianDensity
+            >>> planner = NoveltyPlanner(DynamicsModel(2, OneHot(3)), RollingGaussianDensity(2), OneHot(3))
+            >>> planner.actions_at(torch.tensor(2))
+            tensor([False, False,  True])
+        """
+        # flat, then reshaped: indexing with a 0-d tensor would read it as a Python int, which torch.compile cannot trace
+        candidates = self.candidate_actions
+        return candidates[index.reshape(-1)].reshape(*index.shape, *candidates.shape[1:])
 
     @torch.no_grad()
     def action_scores(self, observation: torch.Tensor) -> torch.Tensor:
