@@ -34,7 +34,7 @@ def test_reinforce_trains_and_writes_the_same_run_files_as_dqn(tmp_path, read_ta
     assert tuple(episodes[0]) == TABLES["episodes"]
     assert [(row["episode"], row["frames"], float(row["eps"])) for row in episodes] == [("1", "200", 0.0), ("2", "400", 0.0)]
     assert [row["frames"] for row in read_table(tmp_path, "evaluations")] == ["200", "400", "400"]  # periodic, final
-    actor_state = torch.load(tmp_path / CHECKPOINT, weights_only=False)["agent"]["actor"]
+    actor_state = torch.load(tmp_path / CHECKPOINT, weights_only=True)["agent"]["actor"]
     biases = [value for name, value in actor_state.items() if name.endswith("bias")]
     assert len(biases) == 2 and not all(torch.all(bias == 0.1) for bias in biases)  # the policy was updated
 
@@ -86,16 +86,16 @@ def test_ctrl_c_then_resume_continues_a_reinforce_run(tmp_path, monkeypatch, rea
     cfg = compose_reinforce("env=mountaincar", "train.max_frames=800", "eval.final_episodes=0")
     original = run_module._record_episodes
 
-    def press_ctrl_c_in_the_second_episode(run, batch):
+    def press_ctrl_c_in_the_second_episode(run, batch, eps):
         if run.progress.episodes == 1:
             os.kill(os.getpid(), signal.SIGINT)
-        return original(run, batch)
+        return original(run, batch, eps)
 
     monkeypatch.setattr(run_module, "_record_episodes", press_ctrl_c_in_the_second_episode)
     with pytest.raises(SystemExit, match="Interrupted at 400 frames"):
         train(cfg, tmp_path)
-    saved = torch.load(tmp_path / CHECKPOINT, weights_only=False)
-    assert saved["progress"]["episodes"] == 2 and saved["replay_buffer"] is None
+    saved = torch.load(tmp_path / CHECKPOINT, weights_only=True)
+    assert saved["progress"]["episodes"] == 2 and "replay_buffer" not in saved["kept"]
 
     monkeypatch.setattr(run_module, "_record_episodes", original)
     cfg.resume = True

@@ -26,6 +26,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
 
 from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
+from torchrl_mbe.app.loggers import BACKENDS, backend_unavailable
 from torchrl_mbe.app.settings import (
     DISCOUNT,
     FRACTION,
@@ -39,7 +40,7 @@ from torchrl_mbe.app.settings import (
     one_of,
     setting,
 )
-from torchrl_mbe.envs.registry import resolve_env_id
+from torchrl_mbe.envs.registry import TASKS, resolve_env_id
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
 __all__ = [
@@ -59,6 +60,7 @@ __all__ = [
 class EnvConfig:
     name: str = "mountaincar"  # a short name (conf/env/) or any discrete-action gymnasium id
     num_envs: int = setting(1, POSITIVE_INT)  # >1: a batch of envs, one novelty window each
+    size: Optional[int] = setting(None, POSITIVE_INT.or_none())  # env=deepsea: the grid's side N (bsuite: 10 to 50)
 
 
 @dataclass
@@ -126,7 +128,7 @@ class CollectorConfig:
 
 @dataclass
 class LoggerConfig:
-    backend: str = setting("csv", one_of("csv", "wandb", "none"))  # CSV tables are always written
+    backend: str = setting("csv", one_of(*BACKENDS))  # CSV tables are always written; wandb, tensorboard mirror them
     mode: str = setting("offline", one_of("offline", "online"))  # wandb only; WANDB_MODE wins
     project: str = "torchrl-mbe"
     log_every_updates: int = setting(250, NON_NEGATIVE_INT)  # 0: no updates.csv rows
@@ -186,7 +188,7 @@ def register_configs() -> None:
         store.store(group="dynamics", name=name, node=DynamicsConfig(name=name))
     for name in ("uniform", "prioritized"):
         store.store(group="buffer", name=name, node=BufferConfig(name=name))
-    for backend in ("csv", "wandb", "none"):
+    for backend in BACKENDS:
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
     if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
         OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
@@ -226,6 +228,10 @@ def _check_together(config: Config) -> None:
     except ValueError as error:
         raise ConfigError(f"env.name={config.env.name!r}: {error}") from None
     _check_device(config.device)
+    if config.env.size is not None and env_id != TASKS["deepsea"].env_id:
+        raise ConfigError(f"env.size={config.env.size}: only env=deepsea has a size; leave it unset (null) for {config.env.name}.")
+    if (missing := backend_unavailable(config.logger.backend)) is not None:
+        raise ConfigError(f"logger={config.logger.backend}: {missing}")
     num_envs, frames_per_batch = config.env.num_envs, config.collector.frames_per_batch
     if isinstance(config.algo, ReinforceConfig) and num_envs != 1:
         raise ConfigError(f"env.num_envs={num_envs}: algo=reinforce plays one episode at a time; use env.num_envs=1.")

@@ -24,9 +24,18 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
 from torchrl_mbe.app.optim import GradientStep, adam
-from torchrl_mbe.app.replay import ReplayTransitions, make_replay_buffer
-from torchrl_mbe.app.run import StopOnInterrupt, evaluate_and_checkpoint_if_due, finish_run, open_run, record_frames, record_updates
-from torchrl_mbe.envs import make_env
+from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
+from torchrl_mbe.app.rollout import CollectorState
+from torchrl_mbe.app.run import (
+    StopOnInterrupt,
+    evaluate_and_checkpoint_if_due,
+    finish_run,
+    keep_in_checkpoints,
+    make_run_env,
+    open_run,
+    record_frames,
+    record_updates,
+)
 from torchrl_mbe.modules.networks import make_per_action_mlp
 from torchrl_mbe.modules.normalization import Standardize
 
@@ -35,12 +44,15 @@ __all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "train_dqn"]
 
 def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains DQN with the configured exploration and returns the run's summary."""
-    env = make_env(cfg.env.name, seed=cfg.seed, num_envs=cfg.env.num_envs, device=cfg.device)
+    env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
-    run = open_run(cfg, run_dir, env, agent, replay_buffer)
+    run = open_run(cfg, run_dir, env, agent)
+    keep_in_checkpoints(run, "replay_buffer", ReplayState(replay_buffer))
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef)
     collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
+    keep_in_checkpoints(run, "transitions", transitions)  # the frames its n-step windows hold back
+    keep_in_checkpoints(run, "collector", CollectorState(collector))  # the env and the step it goes on from
     batches = iter(collector)
     with StopOnInterrupt() as interrupt:
         while not (run.budget_spent() or interrupt.requested):
@@ -52,8 +64,10 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
             update_rows = agent.learn(batch, replay_buffer, run.progress.frames)
             record_updates(run, update_rows)
             evaluate_and_checkpoint_if_due(run, batch.numel())
-    collector.shutdown()
-    return finish_run(run, interrupt)
+    try:
+        return finish_run(run, interrupt)  # its checkpoint keeps the collector's state
+    finally:
+        collector.shutdown()
 
 
 @dataclass(frozen=True)
@@ -153,7 +167,7 @@ class DQNAgent:
         """The policy (Q-network, exploration, dynamics, window) once, the target network, the optimizers, the counters."""
         return {
             "policy": self.explorer.policy.state_dict(),
-            "target_network": self.q_loss.target_value_network_params.data.clone(),
+            "target_network": self.q_loss.target_value_network_params.data.clone().to_dict(),
             "target_updater_counter": getattr(self.target_updater, "counter", None),
             "q_optimizer": self.q_step.optimizer.state_dict(),
             "q_updates": self.q_updates,

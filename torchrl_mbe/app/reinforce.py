@@ -49,15 +49,17 @@ from torchrl.objectives import ReinforceLoss
 from torchrl.objectives.value.functional import reward2go
 
 from torchrl_mbe.app.optim import GradientStep, adam
+from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.app.run import (
     StopOnInterrupt,
     evaluate_and_checkpoint_if_due,
     finish_run,
+    keep_in_checkpoints,
+    make_run_env,
     open_run,
     play_episode,
     record_frames,
 )
-from torchrl_mbe.envs import make_env
 from torchrl_mbe.modules import make_per_action_mlp
 
 __all__ = ["ReinforceAgent", "build_reinforce_agent", "make_policy_actor", "write_advantage", "update_policy", "train_reinforce"]
@@ -185,9 +187,10 @@ def update_policy(agent: ReinforceAgent, episode: TensorDictBase) -> None:
 
 def train_reinforce(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains REINFORCE, one update per episode, and returns the run's summary (see :func:`~torchrl_mbe.app.train`)."""
-    env = make_env(cfg.env.name, seed=cfg.seed, device=cfg.device)
+    env = make_run_env(cfg, num_envs=1, seed=cfg.seed)
     agent = build_reinforce_agent(cfg, env)
     run = open_run(cfg, run_dir, env, agent)
+    keep_in_checkpoints(run, "env", EnvState(env))
     with StopOnInterrupt() as interrupt:
         while not (run.budget_spent() or interrupt.requested):
             with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():

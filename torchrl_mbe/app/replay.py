@@ -1,12 +1,14 @@
 """Replay for DQN: the buffer, and the transitions stored in it (n-step, through TorchRL)."""
 from __future__ import annotations
 
+import torch
 from omegaconf import DictConfig
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
+from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
 from torchrl.envs import MultiStepTransform
 
-__all__ = ["SUCCESSOR_KEY", "make_replay_buffer", "ReplayTransitions", "one_step_transitions"]
+__all__ = ["SUCCESSOR_KEY", "make_replay_buffer", "ReplayState", "ReplayTransitions", "one_step_transitions"]
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
@@ -25,6 +27,48 @@ def make_replay_buffer(buffer: DictConfig, device: str) -> ReplayBuffer:
             alpha=buffer.alpha, beta=buffer.beta, storage=storage, priority_key="td_error", compilable=True
         )
     return TensorDictReplayBuffer(storage=storage, compilable=True)
+
+
+class ReplayState:
+    """A replay buffer's state for a checkpoint, in tensors and plain containers only (it loads with ``weights_only``).
+
+    TorchRL's ``state_dict`` of a prioritized buffer holds its segment trees as
+    C++ objects; they are kept here as the tensors of their leaves and rebuilt on load.
+
+    Examples:
+        >>> import torch
+        >>> from omegaconf import OmegaConf
+        >>> from tensordict import TensorDict
+        >>> from torchrl_mbe.app.replay import ReplayState, make_replay_buffer
+        >>> config = OmegaConf.create({"name": "prioritized", "size": 8, "alpha": 0.6, "beta": 0.4})
+        >>> buffer, copy = make_replay_buffer(config, "cpu"), make_replay_buffer(config, "cpu")
+        >>> indices = buffer.extend(TensorDict({"x": torch.arange(4.0)}, [4]))
+        >>> buffer.update_priority(torch.arange(4), torch.tensor([1.0, 2.0, 3.0, 4.0]))
+        >>> ReplayState(copy).load_state_dict(ReplayState(buffer).state_dict())
+        >>> torch.equal(copy[:4]["x"], buffer[:4]["x"]), copy.sampler._sum_tree.query(0, 8) == buffer.sampler._sum_tree.query(0, 8)
+        (True, True)
+    """
+
+    _TREES = {"_sum_tree": SumSegmentTreeFp32, "_min_tree": MinSegmentTreeFp32}
+
+    def __init__(self, buffer: ReplayBuffer) -> None:
+        self.buffer = buffer
+
+    def state_dict(self) -> dict:
+        state = self.buffer.state_dict()
+        sampler = state["_sampler"]
+        for name in self._TREES.keys() & sampler.keys():
+            sampler[name] = sampler[name][torch.arange(sampler[name].size)]
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        sampler = state["_sampler"]
+        for name in self._TREES.keys() & sampler.keys():
+            leaves = sampler[name]
+            tree = self._TREES[name](len(leaves))
+            tree[torch.arange(len(leaves))] = leaves
+            sampler[name] = tree
+        self.buffer.load_state_dict(state)
 
 
 class ReplayTransitions:
@@ -78,6 +122,17 @@ class ReplayTransitions:
                 return None
             frames = frames.exclude("gamma", "nonterminal", ("next", "original_reward"))
         return frames.reshape(-1)
+
+    def state_dict(self) -> dict:
+        """The frames held back for the next batch's n-step windows (none with ``n_steps=1``)."""
+        held_back = self.multistep._buffer if self.multistep is not None else None
+        if held_back is None:
+            return {"held_back": None}
+        return {"held_back": held_back.to_dict(), "batch_size": list(held_back.batch_size)}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["held_back"] is not None:
+            self.multistep._buffer = TensorDict(state["held_back"], batch_size=state["batch_size"])
 
 
 def one_step_transitions(frames: TensorDictBase) -> TensorDictBase:

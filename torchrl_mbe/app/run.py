@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import signal
 import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -28,6 +29,7 @@ from tqdm.auto import tqdm
 
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name
 from torchrl_mbe.app.loggers import RunLogger
+from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, reached_goal, resolve_env_id, task_of
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
@@ -44,6 +46,9 @@ __all__ = [
     "evaluate",
     "play_episode",
     "record_updates",
+    "make_run_env",
+    "keep_in_checkpoints",
+    "Resumable",
     "CHECKPOINT_FORMAT",
 ]
 
@@ -52,6 +57,14 @@ tqdm.set_lock(threading.RLock())  # tqdm's default lock is a multiprocessing sem
 
 CHECKPOINT_FORMAT = 3
 """Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2)."""
+
+
+class Resumable(Protocol):
+    """Anything whose state a checkpoint keeps."""
+
+    def state_dict(self) -> dict: ...
+
+    def load_state_dict(self, state: dict) -> None: ...
 
 
 class Agent(Protocol):
@@ -101,10 +114,11 @@ class Run:
     progress: Progress
     logger: RunLogger
     bar: tqdm
-    replay_buffer: Any = None  # saved with the checkpoint when the algorithm has one
     started: float = field(default_factory=time.perf_counter)
     confirmation: tuple[int, dict] | None = None  # (frames, result) of the evaluation that confirmed "solved"
     visited: list = field(default_factory=list)  # (observations, episode ids) per batch, with train.save_visited_states
+    kept: dict[str, Resumable] = field(default_factory=dict)  # the loop's parts whose state checkpoints keep
+    resumed: dict | None = None  # their states in the checkpoint this run resumed from
 
     @property
     def solved_threshold(self) -> float | None:
@@ -119,8 +133,11 @@ class Run:
         return progress.episodes >= train.episodes or (train.max_frames is not None and progress.frames >= train.max_frames)
 
 
-def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_buffer: Any = None) -> Run:
+def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent) -> Run:
     """Starts the run in ``run_dir``, or resumes it from its checkpoint with ``cfg.resume``.
+
+    The loop then names the other parts whose state checkpoints keep
+    (:func:`keep_in_checkpoints`: the replay buffer, the collector, ...).
 
     Raises:
         ConfigError: ``run_dir`` holds a run and ``resume`` is off; nothing to
@@ -128,16 +145,18 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
         RunFinished: ``resume`` on a run that already spent its (new) budget.
     """
     env_id = resolve_env_id(cfg.env.name)
-    eval_env = make_env(cfg.env.name, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000, device=cfg.device)
+    eval_env = make_run_env(cfg, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000)
     if not cfg.resume:
         _refuse_to_overwrite(run_dir)
     checkpoint = _read_checkpoint(cfg, run_dir) if cfg.resume else None
-    progress = _restore(checkpoint, agent, replay_buffer) if checkpoint is not None else Progress()
+    progress = _restore(checkpoint, agent) if checkpoint is not None else Progress()
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
     bar = _progress_bar(cfg, progress)
-    run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar, replay_buffer)
-    if checkpoint is not None and checkpoint["visited"] is not None:
-        run.visited = checkpoint["visited"]
+    run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar)
+    if checkpoint is not None:
+        run.resumed = checkpoint["kept"]
+        run.visited = checkpoint["visited"] or []
+    keep_in_checkpoints(run, "eval_env", EnvState(eval_env))  # its start states go on where they stopped
     run.started -= progress.wall_time_s
     summary = _summary_of_this_checkpoint(run_dir, progress) if cfg.resume else None
     if summary is not None and run.budget_spent():
@@ -145,6 +164,12 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent, replay_
         raise RunFinished(summary)
     log.info("Run directory: %s", run_dir)
     return run
+
+
+def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int) -> EnvBase:
+    """The configured env (``cfg.env``, on ``cfg.device``): training, evaluation and final envs are the same task."""
+    options = {"size": cfg.env.size} if cfg.env.size is not None else {}
+    return make_env(cfg.env.name, num_envs=num_envs, seed=seed, device=cfg.device, **options)
 
 
 def _summary_of_this_checkpoint(run_dir: Path, progress: Progress) -> dict | None:
@@ -181,10 +206,7 @@ def _read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
     checkpoint_path = run_dir / CHECKPOINT
     if not checkpoint_path.exists():
         raise ConfigError(f"resume=true but {checkpoint_path} does not exist: nothing to resume.")
-    try:
-        checkpoint = torch.load(checkpoint_path, weights_only=False)
-    except Exception as error:  # a truncated or foreign file: say which, keep it
-        raise ConfigError(f"Cannot read checkpoint {checkpoint_path}: {error}") from error
+    checkpoint = load_safely(checkpoint_path)
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         found = checkpoint.get("format", 1) if isinstance(checkpoint, dict) else "unknown"
         raise ConfigError(
@@ -199,14 +221,19 @@ def _read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
     return checkpoint
 
 
-def _restore(checkpoint: dict, agent: Agent, replay_buffer: Any) -> Progress:
+def _restore(checkpoint: dict, agent: Agent) -> Progress:
     agent.load_state_dict(checkpoint["agent"])
-    if replay_buffer is not None:
-        replay_buffer.load_state_dict(checkpoint["replay_buffer"])
     torch.set_rng_state(checkpoint["torch_rng"])
     progress = Progress(**checkpoint["progress"])
     log.info("Resumed at %d frames, %d episodes", progress.frames, progress.episodes)
     return progress
+
+
+def keep_in_checkpoints(run: Run, name: str, part: Resumable) -> None:
+    """Puts ``part``'s state into every checkpoint from now on; a resumed run restores it here, from its checkpoint."""
+    run.kept[name] = part
+    if run.resumed is not None:
+        part.load_state_dict(run.resumed[name])
 
 
 class StopOnInterrupt:
@@ -305,7 +332,8 @@ def _periodic_evaluation(run: Run) -> None:
     mean = result["eval_return_mean"]
     if progress.best_eval_return is None or mean > progress.best_eval_return:
         progress.best_eval_return, progress.best_eval_frames = mean, progress.frames
-        torch.save({"actor": run.agent.actor.state_dict(), "frames": progress.frames, "eval_return_mean": mean}, run.run_dir / BEST_POLICY)
+        best = {"actor": run.agent.actor.state_dict(), "frames": progress.frames, "eval_return_mean": mean}
+        save_atomically(best, run.run_dir / BEST_POLICY)
     threshold = run.solved_threshold
     if threshold is not None and mean >= threshold and progress.solved_at_frames is None:
         _confirm_solved(run, threshold)
@@ -333,7 +361,7 @@ def _confirm_solved(run: Run, threshold: float) -> None:
 def _final_evaluation(run: Run) -> dict:
     """Greedy returns of ``eval.final_episodes`` episodes played side by side (their own seeds)."""
     cfg = run.cfg
-    final_env = make_env(cfg.env.name, num_envs=cfg.eval.final_episodes, seed=cfg.seed + 20_000, device=cfg.device)
+    final_env = make_run_env(cfg, num_envs=cfg.eval.final_episodes, seed=cfg.seed + 20_000)
     return evaluate(run.agent.actor, final_env, run.env_id)
 
 
@@ -371,14 +399,61 @@ def save_checkpoint(run: Run) -> None:
         "format": CHECKPOINT_FORMAT,
         "config": OmegaConf.to_container(run.cfg, resolve=True),
         "agent": run.agent.state_dict(),
-        "replay_buffer": run.replay_buffer.state_dict() if run.replay_buffer is not None else None,
+        "kept": {name: part.state_dict() for name, part in run.kept.items()},
         "progress": asdict(run.progress),
         "visited": run.visited if run.cfg.train.save_visited_states else None,
         "torch_rng": torch.get_rng_state(),
     }
-    partial = run.run_dir / (CHECKPOINT + ".partial")
-    torch.save(checkpoint, partial)
-    partial.replace(run.run_dir / CHECKPOINT)
+    save_atomically(checkpoint, run.run_dir / CHECKPOINT)
+
+
+def save_atomically(state: dict, path: Path) -> None:
+    """``torch.save`` through a ``.partial`` file: a crash mid-write keeps the previous file whole."""
+    partial = path.with_name(path.name + ".partial")
+    torch.save(state, partial)
+    partial.replace(path)
+
+
+def load_safely(path: Path) -> dict:
+    """A checkpoint or best policy, read with ``weights_only=True``: tensors and plain containers, never code.
+
+    Raises:
+        ConfigError: one line naming the file, if it is truncated, foreign, or
+            holds anything a weights-only load refuses (a pickled callable, say).
+
+    Examples:
+        >>> import tempfile, torch
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.app.run import load_safely
+        >>> path = Path(tempfile.mkdtemp()) / "policy.pt"
+        >>> torch.save({"actor": {"weight": torch.zeros(2)}, "frames": 10}, path)
+        >>> load_safely(path)["frames"]
+        10
+        >>> torch.save({"actor": print}, path)  # a callable: loading it would run code
+        >>> load_safely(path)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        torchrl_mbe.app.settings.ConfigError: Refusing .../policy.pt: it holds print, which a weights-only load does not run (only tensors and plain containers are read).
+    """
+    try:
+        return torch.load(path, weights_only=True)
+    except Exception as error:
+        code = re.search(r"Unsupported global: GLOBAL (\S+)", str(error))
+        if code is not None:
+            raise ConfigError(
+                f"Refusing {path}: it holds {code.group(1)}, which a weights-only load does not run "
+                "(only tensors and plain containers are read)."
+            ) from None
+        raise ConfigError(f"Cannot read {path} (truncated, or not a torchrl-mbe file): {_reason(error)}") from None
+
+
+def _reason(error: Exception) -> str:
+    """The line of a ``torch.load`` error that says what was wrong (its messages wrap it in advice)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    unpickler = next((i for i, line in enumerate(lines) if line.endswith("WeightsUnpickler error:")), None)
+    if unpickler is not None and unpickler + 1 < len(lines):
+        return lines[unpickler + 1]
+    return lines[0].split(". ")[0] if lines else type(error).__name__
 
 
 def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:

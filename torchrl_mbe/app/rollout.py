@@ -1,0 +1,68 @@
+"""What a checkpoint keeps of the collecting side, so that a resumed run continues where it stopped.
+
+A torch-batched env (the registry's ``Task.torch_env``: MountainCar, CartPole,
+Acrobot, DeepSea) holds its whole state in its ``state_dict`` (physics, step
+counts, the generator of its start states); with the collector's carrier (the
+current observations, step counts and running returns that the next step
+starts from) a resumed run takes exactly the steps the uninterrupted one would
+have taken. A gymnasium-backed env (LunarLander, or ``backend=gym``) cannot be
+saved: a resumed run starts fresh episodes there, and its unfinished ones are
+never logged.
+"""
+from __future__ import annotations
+
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+from torchrl.envs import EnvBase
+
+from torchrl_mbe.envs.registry import TASKS
+
+__all__ = ["EnvState", "CollectorState", "saves_exactly"]
+
+_CARRIER_OWN_KEYS = ("collector",)  # the collector's trajectory ids, renumbered by every collector
+
+
+def saves_exactly(env: EnvBase) -> bool:
+    """Whether ``env`` (as ``make_env`` wraps it) is one of the torch-batched envs whose state a checkpoint can hold."""
+    torch_envs = tuple(task.torch_env for task in TASKS.values() if task.torch_env is not None)
+    return isinstance(getattr(env, "base_env", env), torch_envs)
+
+
+class EnvState:
+    """An env's state for a checkpoint: all of a torch-batched env's, nothing of a gymnasium env's."""
+
+    def __init__(self, env: EnvBase) -> None:
+        self.env = env
+        self.exact = saves_exactly(env)
+
+    def state_dict(self) -> dict:
+        return self.env.base_env.state_dict() if self.exact else {}
+
+    def load_state_dict(self, state: dict) -> None:
+        if self.exact:
+            self.env.base_env.load_state_dict(state)
+
+
+class CollectorState:
+    """A collector's env and its carrier (the step the next batch starts from), for a torch-batched env.
+
+    TorchRL's ``Collector.state_dict`` leaves the carrier out ("runtime env state
+    is not generally serializable"); for the torch-batched envs it is, so this
+    keeps it, apart from the collector's own trajectory ids.
+    """
+
+    def __init__(self, collector: Collector) -> None:
+        self.collector = collector
+        self.env = EnvState(collector.env)
+
+    def state_dict(self) -> dict:
+        if not self.env.exact:
+            return {}
+        return {"env": self.env.state_dict(), "carrier": self.collector._carrier.exclude(*_CARRIER_OWN_KEYS).to_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if not self.env.exact:
+            return
+        self.env.load_state_dict(state["env"])
+        carrier = self.collector._carrier
+        carrier.update(TensorDict(state["carrier"], batch_size=carrier.batch_size, device=carrier.device))
