@@ -41,6 +41,7 @@ from torchrl_mbe.app.settings import (
     setting,
 )
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id
+from torchrl_mbe.modules.exploration import check_eps_schedule
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
 __all__ = [
@@ -239,10 +240,10 @@ def _check_together(config: Config) -> None:
         raise ConfigError(f"collector.frames_per_batch={frames_per_batch}: expected a multiple of env.num_envs={num_envs}.")
     if isinstance(config.algo, DQNConfig):
         algo = config.algo
-        if algo.eps_end > algo.eps_init:
-            raise ConfigError(f"algo.eps_end={algo.eps_end}: expected at most algo.eps_init={algo.eps_init}.")
-        if algo.eps_schedule == "exponential" and algo.eps_end == 0:
-            raise ConfigError("algo.eps_end=0: the exponential schedule decays multiplicatively; expected eps_end > 0.")
+        try:
+            check_eps_schedule(algo.eps_init, algo.eps_end, algo.eps_annealing_frames, algo.eps_schedule)
+        except ValueError as error:  # the exploration module's own rule, named by the keys it reads
+            raise ConfigError(f"algo (eps_init, eps_end, eps_schedule): {error}") from None
     if is_planning(config) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
         raise ConfigError(f"dynamics=oracle: the oracle exists for MountainCar-v0 only, not {config.env.name}.")
 
