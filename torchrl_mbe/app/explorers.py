@@ -16,6 +16,7 @@ The loop never asks which explorer it has. Adding one means adding a class here
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import ClassVar, Optional
 
@@ -307,10 +308,11 @@ class PlanningExplorer(EGreedyExplorer):
     the dynamics model is learned (``dynamics=mlp``) or MountainCar's physics
     (``dynamics=oracle``, nothing to train). Its error on every new batch, before
     it is trained on, feeds the policy's warm-up switch. Subclasses choose the
-    novelty scorer (:meth:`make_novelty`).
+    novelty scorer (``scorer``).
     """
 
     schema = PlanningExploration
+    scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
     def __init__(self, policy: ModelBasedExplorationPolicy, loss: DynamicsLoss, training: DynamicsTraining | None) -> None:
         super().__init__(policy, policy)
@@ -338,8 +340,14 @@ class PlanningExplorer(EGreedyExplorer):
 
     @classmethod
     def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        """The novelty scorer, one window per environment (``kwargs``: ``batch_shape``, ``device``)."""
-        raise NotImplementedError
+        """The novelty scorer, one window per environment (``kwargs``: ``batch_shape``, ``device``).
+
+        ``scorer(observation_size, window, **options)``, its options the fields
+        the explorer's schema adds to :class:`PlanningExploration` (the kernel's
+        ``bandwidth``, kNN's ``k``).
+        """
+        options = {name: exploration[name] for name in _field_names(cls.schema) - _field_names(PlanningExploration)}
+        return cls.scorer(observation_size, exploration.window, **options, **kwargs)
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
@@ -381,10 +389,7 @@ class GaussianExplorer(PlanningExplorer):
     """``exploration=gaussian``, the paper's: the least likely state under a full-covariance Gaussian of the window."""
 
     schema = GaussianExploration
-
-    @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        return scorers.RollingGaussianDensity(observation_size, exploration.window, **kwargs)
+    scorer = scorers.RollingGaussianDensity
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
@@ -401,10 +406,7 @@ class KernelExplorer(PlanningExplorer):
     """``exploration=kernel``, the paper's baseline (Oh et al., 2015): the least similar state by a Gaussian kernel."""
 
     schema = KernelExploration
-
-    @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        return scorers.GaussianKernelNovelty(observation_size, exploration.window, bandwidth=exploration.bandwidth, **kwargs)
+    scorer = scorers.GaussianKernelNovelty
 
 
 @dataclass
@@ -416,10 +418,7 @@ class DiagonalExplorer(PlanningExplorer):
     """``exploration=diagonal``: a Gaussian of the window without correlations."""
 
     schema = DiagonalExploration
-
-    @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        return scorers.DiagonalGaussianDensity(observation_size, exploration.window, **kwargs)
+    scorer = scorers.DiagonalGaussianDensity
 
 
 @dataclass
@@ -432,10 +431,7 @@ class KNearestExplorer(PlanningExplorer):
     """``exploration=knn``: the state farthest from its k nearest neighbours in the window."""
 
     schema = KNearestExploration
-
-    @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        return scorers.KNearestNovelty(observation_size, exploration.window, k=exploration.k, **kwargs)
+    scorer = scorers.KNearestNovelty
 
 
 @dataclass
@@ -448,10 +444,7 @@ class KernelDensityExplorer(PlanningExplorer):
     """``exploration=kde``: the least likely state under a kernel density estimate of the window."""
 
     schema = KernelDensityExploration
-
-    @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
-        return scorers.KernelDensityNovelty(observation_size, exploration.window, **kwargs)
+    scorer = scorers.KernelDensityNovelty
 
 
 EXPLORERS: dict[str, type[Explorer]] = {
@@ -470,6 +463,10 @@ EXPLORERS: dict[str, type[Explorer]] = {
 }
 """Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde),
 TorchRL's RND and NoisyNet, e-greedy (random exploring actions) and none (never explores)."""
+
+
+def _field_names(schema: type) -> set[str]:
+    return {spec.name for spec in dataclasses.fields(schema)}
 
 
 def explorer_of(exploration: DictConfig) -> type[Explorer]:
