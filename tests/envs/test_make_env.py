@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.data import Categorical, OneHot
+from torchrl.data import Categorical, Composite, OneHot
 
 from torchrl_mbe import SUPPORTED_ENVS, make_env
 from torchrl_mbe.envs import MountainCarDynamics
@@ -32,14 +32,16 @@ def test_unsupported_envs_get_one_clear_error_naming_what_is_supported(name, mes
     assert "mountaincar (MountainCar-v0)" in str(error.value)
 
 
-@pytest.mark.parametrize("spec", [OneHot(3), Categorical(3)], ids=["one-hot", "categorical"])
+@pytest.mark.parametrize(
+    "spec", [OneHot(3), Categorical(3), Composite(action=OneHot(3))], ids=["one-hot", "categorical", "a QValueActor's Composite"]
+)
 def test_oracle_dynamics_equals_gymnasium_mountaincar_step(spec):
     generator = torch.Generator().manual_seed(0)
     states = torch.stack([torch.rand(200, generator=generator) * 1.8 - 1.2, torch.rand(200, generator=generator) * 0.14 - 0.07], -1)
     states[:10, 0] = -1.2  # at the left wall, moving left
     states[:10, 1] = -0.05
     actions = torch.randint(3, (200,), generator=generator)
-    encoded = torch.nn.functional.one_hot(actions, 3) if isinstance(spec, OneHot) else actions
+    encoded = actions if isinstance(spec, Categorical) else torch.nn.functional.one_hot(actions, 3)
     td = TensorDict({"observation": states.double(), "action": encoded}, [200])
     predicted = MountainCarDynamics(spec)(td)["predicted_observation"]
     env = gym.make("MountainCar-v0").unwrapped

@@ -18,7 +18,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
-from torchrl_mbe.modules.actions import action_indices, num_discrete_actions
+from torchrl_mbe.modules.actions import action_indices, discrete_action_spec
 
 __all__ = ["MOUNTAINCAR", "mountaincar_step", "MountainCarDynamics", "BatchedMountainCarEnv"]
 
@@ -53,7 +53,8 @@ class MountainCarDynamics(TensorDictModuleBase):
     """MountainCar-v0's exact dynamics as a dynamics module (no parameters to learn).
 
     Args:
-        action_spec (OneHot or Categorical): how ``action`` is encoded.
+        action_spec (OneHot, Categorical or Composite): how ``action`` is encoded
+            (a ``Composite``, such as a ``QValueActor``'s spec, through its ``action`` entry).
 
     Keyword Args:
         observation_key (NestedKey): defaults to ``"observation"``.
@@ -80,8 +81,7 @@ class MountainCarDynamics(TensorDictModuleBase):
         out_key: NestedKey = "predicted_observation",
     ) -> None:
         super().__init__()
-        num_discrete_actions(action_spec)
-        self.action_spec = action_spec
+        self.action_spec = discrete_action_spec(action_spec, action_key)  # also a QValueActor's Composite spec
         self.in_keys = [observation_key, action_key]
         self.out_keys = [out_key]
 
