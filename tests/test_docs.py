@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import re
+import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,8 @@ def python_blocks(page: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("page", sorted(DOCS.glob("*.md")), ids=lambda page: page.name)
-def test_python_examples_in_docs_run(page):
+def test_python_examples_in_docs_run(page, monkeypatch):
+    module = types.ModuleType("__docs__")  # a real module, as dataclasses defined in an example need
+    monkeypatch.setitem(sys.modules, module.__name__, module)
     for block in python_blocks(page):
-        exec(compile(block, str(page), "exec"), {"__name__": "__docs__"})
+        exec(compile(block, str(page), "exec"), module.__dict__)
