@@ -39,8 +39,14 @@ def test_other_supported_envs_train_with_gaussian_exploration(tmp_path, env, com
 
 def test_deepsea_trains_at_the_configured_size_and_its_evaluations_play_the_same_grid(tmp_path, compose_config, read_table):
     summary = train(compose_config("env=deepsea", "env.size=6", "eval.episodes=2", "eval.every_frames=96"), tmp_path)
-    assert summary["env"] == "DeepSea" and summary["final_eval_return"] is not None
+    assert summary["env"] == "DeepSea-6" and summary["final_eval_return"] is not None  # the report keeps sizes apart
     assert {int(row["length"]) for row in read_table(tmp_path, "episodes")} == {6}  # one row down per step
+
+
+def test_a_deepsea_run_directory_names_its_size(tmp_path, run_app):
+    result = run_app("env=deepsea", "env.size=6", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "runs" / "default" / "deepsea-6" / "dqn+gaussian" / "seed0" / "summary.json").exists()
 
 
 def test_n_step_windows_longer_than_a_batch_fill_across_batches(tmp_path, compose_config):

@@ -53,6 +53,7 @@ __all__ = [
     "config_differences",
     "config_id",
     "method_name",
+    "with_size",
     "register_configs",
 ]
 
@@ -193,6 +194,8 @@ def register_configs() -> None:
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
     if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
         OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
+    if not OmegaConf.has_resolver("env_name"):  # ... and after the env, with its size
+        OmegaConf.register_new_resolver("env_name", lambda *, _root_: with_size(_root_.env.name, _root_.env.size))
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -274,6 +277,17 @@ def method_name(cfg: DictConfig) -> str:
     learns = cfg.algo.updates_per_frame > 0
     label = explorer_of(cfg.exploration).method_label(cfg, learns=learns)
     return f"{cfg.algo.name}+{label}" if learns else EXPLORATION_PREFIX + label
+
+
+def with_size(env: str, size: int | None) -> str:
+    """An env's name with its size, if it has one: what run directories and summaries call it.
+
+    Examples:
+        >>> from torchrl_mbe.app.config import with_size
+        >>> with_size("DeepSea", 20), with_size("mountaincar", None)
+        ('DeepSea-20', 'mountaincar')
+    """
+    return env if size is None else f"{env}-{size}"
 
 
 def is_planning(cfg: DictConfig | Config) -> bool:

@@ -27,7 +27,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
-from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name
+from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, reached_goal, resolve_env_id, task_of
@@ -491,7 +491,7 @@ def write_summary(run: Run, final: dict | None) -> dict:
     cfg, progress, threshold = run.cfg, run.progress, run.solved_threshold
     final_return = final["eval_return_mean"] if final else None
     summary = {
-        "env": run.env_id,
+        "env": with_size(run.env_id, cfg.env.size),  # DeepSea-20: one env per size in the report
         "method": method_name(cfg),
         "seed": cfg.seed,
         "tag": cfg.tag,
