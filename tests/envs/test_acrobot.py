@@ -4,7 +4,6 @@ import math
 
 import gymnasium as gym
 import numpy as np
-import pytest
 import torch
 from gymnasium.envs.classic_control import acrobot as gym_acrobot
 from torchrl.envs import GymEnv
@@ -36,17 +35,6 @@ def gymnasium_episode(
         if terminated or truncated:
             break
     return torch.from_numpy(np.stack(observations)), outcomes, torch.from_numpy(env.unwrapped.state)
-
-
-@pytest.mark.parametrize("batch_shape", [(1,), (5,), (2, 3)], ids=str)
-def test_specs_match_gymenv_and_pass_torchrl_checks(batch_shape):
-    env = BatchedAcrobotEnv(batch_shape, seed=0)
-    check_env_specs(env)
-    reference = GymEnv("Acrobot-v1")
-    assert env.batch_size == batch_shape
-    assert env.max_episode_steps == gym.spec("Acrobot-v1").max_episode_steps == 500
-    for name in ("full_observation_spec", "full_action_spec", "full_reward_spec", "full_done_spec"):
-        assert getattr(env, name) == getattr(reference, name).expand(*batch_shape).to("cpu"), name
 
 
 def test_start_states_are_float32_draws_uniform_in_gymnasiums_range():

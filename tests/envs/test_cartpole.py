@@ -2,7 +2,6 @@ from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
-import pytest
 import torch
 from torchrl.collectors import Collector
 from torchrl.envs import GymEnv, SerialEnv
@@ -30,17 +29,6 @@ def gymnasium_episode(
         if terminated or truncated:
             break
     return torch.from_numpy(np.stack(observations)), outcomes
-
-
-@pytest.mark.parametrize("batch_shape", [(1,), (5,), (2, 3)], ids=str)
-def test_specs_match_gymenv_and_pass_torchrl_checks(batch_shape):
-    env = BatchedCartPoleEnv(batch_shape, seed=0)
-    check_env_specs(env)
-    reference = GymEnv("CartPole-v1")
-    assert env.batch_size == batch_shape
-    assert env.max_episode_steps == gym.spec("CartPole-v1").max_episode_steps == 500
-    for name in ("full_observation_spec", "full_action_spec", "full_reward_spec", "full_done_spec"):
-        assert getattr(env, name) == getattr(reference, name).expand(*batch_shape).to("cpu"), name
 
 
 def test_start_states_are_uniform_in_gymnasiums_range():
@@ -103,17 +91,6 @@ def test_partial_resets_in_a_collector_restart_exactly_the_fallen_poles():
     assert data["observation"][after_done].abs().max() <= 0.05
     continuing = ~after_done[:, 1:]
     torch.testing.assert_close(data["observation"][:, 1:][continuing], data["next", "observation"][:, :-1][continuing])
-
-
-def test_same_seed_same_episodes_other_seed_other_episodes():
-    def rollout(seed: int):
-        torch.manual_seed(0)  # the random actions
-        return BatchedCartPoleEnv(3, seed=seed).rollout(100, break_when_any_done=False)
-
-    first, again, other = rollout(7), rollout(7), rollout(8)
-    assert torch.equal(first["observation"], again["observation"])
-    assert torch.equal(first["next", "done"], again["next", "done"])
-    assert not torch.equal(first["observation"][:, 0], other["observation"][:, 0])
 
 
 def test_make_env_steps_several_cartpoles_in_torch_and_one_through_gymnasium():

@@ -8,7 +8,6 @@ from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import GymEnv, SerialEnv
-from torchrl.envs.utils import check_env_specs
 from torchrl.modules import MLP, QValueActor
 
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
@@ -21,17 +20,6 @@ def pump_energy(observation: torch.Tensor) -> torch.Tensor:
 
 
 PUMP = TensorDictModule(pump_energy, in_keys=["observation"], out_keys=["action"])
-
-
-@pytest.mark.parametrize("num_envs", [1, 5])
-def test_specs_match_gymenv_and_pass_torchrl_checks(num_envs):
-    env = BatchedMountainCarEnv(num_envs, seed=0)
-    check_env_specs(env)
-    check_env_specs(make_env("mountaincar", num_envs=num_envs, backend="torch", seed=0))
-    reference = GymEnv("MountainCar-v0")
-    assert env.batch_size == (num_envs,)
-    for name in ("full_observation_spec", "full_action_spec", "full_reward_spec", "full_done_spec"):
-        assert getattr(env, name) == getattr(reference, name).expand(num_envs).to("cpu"), name
 
 
 def test_start_states_are_uniform_in_gymnasiums_range_with_zero_velocity():
@@ -116,17 +104,6 @@ def test_collector_truncates_long_episodes():
     collector.shutdown()
     truncated = data["next", "truncated"].squeeze(-1)
     assert truncated.nonzero()[:, 1].tolist() == [29, 29]
-
-
-def test_same_seed_same_episodes_other_seed_other_episodes():
-    def rollout(seed: int) -> TensorDict:
-        torch.manual_seed(0)  # the random actions
-        return BatchedMountainCarEnv(3, seed=seed).rollout(250, break_when_any_done=False)
-
-    first, again, other = rollout(7), rollout(7), rollout(8)
-    assert torch.equal(first["observation"], again["observation"])
-    assert torch.equal(first["next", "done"], again["next", "done"])
-    assert not torch.equal(first["observation"][:, 0], other["observation"][:, 0])
 
 
 def test_make_env_batches_other_tasks_serially_and_rejects_bad_requests():
