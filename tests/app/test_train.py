@@ -43,6 +43,12 @@ def test_deepsea_trains_at_the_configured_size_and_its_evaluations_play_the_same
     assert {int(row["length"]) for row in read_table(tmp_path, "episodes")} == {6}  # one row down per step
 
 
+def test_deepsea_runs_within_bsuites_budget_of_10000_episodes_and_stops_at_the_treasure(compose_default):
+    cfg = compose_default("env=deepsea")
+    assert (cfg.train.episodes, cfg.train.max_frames, cfg.train.stop_when_solved) == (10_000, None, True)
+    assert cfg.env.size == 10 and cfg.eval.episodes == cfg.eval.final_episodes == 1  # deterministic: one episode says it
+
+
 def test_a_deepsea_run_directory_names_its_size(tmp_path, run_app):
     result = run_app("env=deepsea", "env.size=6", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
