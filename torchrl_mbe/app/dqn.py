@@ -47,7 +47,7 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
-    run = open_run(cfg, run_dir, env, agent)
+    run = open_run(cfg, run_dir, agent)
     keep_in_checkpoints(run, "replay_buffer", ReplayState(replay_buffer))
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef)
     collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)

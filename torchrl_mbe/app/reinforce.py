@@ -189,7 +189,7 @@ def train_reinforce(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains REINFORCE, one update per episode, and returns the run's summary (see :func:`~torchrl_mbe.app.train`)."""
     env = make_run_env(cfg, num_envs=1, seed=cfg.seed)
     agent = build_reinforce_agent(cfg, env)
-    run = open_run(cfg, run_dir, env, agent)
+    run = open_run(cfg, run_dir, agent)
     keep_in_checkpoints(run, "env", EnvState(env))
     with StopOnInterrupt() as interrupt:
         while not (run.budget_spent() or interrupt.requested):

@@ -108,7 +108,6 @@ class Run:
     cfg: DictConfig
     run_dir: Path
     env_id: str
-    env: EnvBase
     eval_env: EnvBase  # ``eval.episodes`` copies: one periodic evaluation is one batched rollout
     agent: Agent
     progress: Progress
@@ -133,7 +132,7 @@ class Run:
         return progress.episodes >= train.episodes or (train.max_frames is not None and progress.frames >= train.max_frames)
 
 
-def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent) -> Run:
+def open_run(cfg: DictConfig, run_dir: Path, agent: Agent) -> Run:
     """Starts the run in ``run_dir``, or resumes it from its checkpoint with ``cfg.resume``.
 
     The loop then names the other parts whose state checkpoints keep
@@ -152,7 +151,7 @@ def open_run(cfg: DictConfig, run_dir: Path, env: EnvBase, agent: Agent) -> Run:
     progress = _restore(checkpoint, agent) if checkpoint is not None else Progress()
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
     bar = _progress_bar(cfg, progress)
-    run = Run(cfg, run_dir, env_id, env, eval_env, agent, progress, logger, bar)
+    run = Run(cfg, run_dir, env_id, eval_env, agent, progress, logger, bar)
     if checkpoint is not None:
         run.resumed = checkpoint["kept"]
         run.visited = checkpoint["visited"] or []
