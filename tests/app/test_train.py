@@ -346,3 +346,15 @@ def test_ctrl_c_during_the_final_evaluation_exits_with_the_checkpoint_and_the_re
         train(compose_config(), tmp_path)
     assert torch.load(tmp_path / CHECKPOINT, weights_only=True)["progress"]["frames"] == 304
     assert not (tmp_path / "summary.json").exists()
+
+
+def test_a_setting_added_since_0_2_leaves_the_config_id_of_runs_that_leave_it_unset(compose_config):
+    from omegaconf import OmegaConf
+
+    from torchrl_mbe.app.config import config_id
+
+    cfg = compose_config()
+    as_0_2_wrote_it = OmegaConf.create(OmegaConf.to_container(cfg))
+    del as_0_2_wrote_it.env["size"]  # 0.2.0 had no env.size
+    assert config_id(cfg) == config_id(as_0_2_wrote_it)  # the report groups old and new runs of one config together
+    assert config_id(compose_config("env=deepsea", "env.size=10")) != config_id(compose_config("env=deepsea", "env.size=20"))

@@ -315,14 +315,23 @@ def config_id(cfg: DictConfig) -> str:
     """A short fingerprint of everything that shapes a run's result except its seed.
 
     Runs with the same ``config_id`` ran the same experiment; the report groups by it.
+    A setting added since runs were first fingerprinted counts only when it is set
+    (:data:`_ADDED_SETTINGS`), so a run of an older version keeps its id.
     """
-    settings = {key: value for key, value in _flatten(OmegaConf.to_container(cfg, resolve=True)).items()}
-    shaping = {key: value for key, value in settings.items() if key != "seed" and key.split(".")[0] not in _PLACEMENT}
+    settings = _flatten(OmegaConf.to_container(cfg, resolve=True))
+    shaping = {
+        key: value
+        for key, value in settings.items()
+        if key != "seed" and key.split(".")[0] not in _PLACEMENT and not (key in _ADDED_SETTINGS and value is None)
+    }
     return hashlib.sha1(json.dumps(shaping, sort_keys=True, default=str).encode()).hexdigest()[:8]
 
 
 # Keys that change where and how a run is shown, not what it computes.
 _PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag")
+
+# Settings added after torchrl-mbe 0.2.0, whose unset (null) value changes nothing that version computed.
+_ADDED_SETTINGS = ("env.size",)
 
 
 def _flatten(tree: dict, prefix: str = "") -> dict:
