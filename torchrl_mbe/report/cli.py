@@ -3,7 +3,8 @@
 Every directory under ``RUNS_DIR`` (at any depth, so Hydra multirun sweeps work)
 holding a ``summary.json`` is one run (:mod:`torchrl_mbe.report.runs` reads them).
 The output directory gets ``results.md`` and, per env, ``frames_to_solved_<env>.png``,
-``greedy_evaluations_<env>.png``, ``learning_curves_<env>.png`` and ``coverage_<env>.png``.
+``greedy_evaluations_<env>.png``, ``learning_curves_<env>.png`` and ``coverage_<env>.png``;
+with DeepSea at two or more sizes, also ``scaling_DeepSea.png`` (episodes to solved against N).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The report's figures: learning curves (the paper's Figures 2 and 4) and visited states (Figures 1 and 3)."""
+"""The report's figures: learning curves (the paper's Figures 2 and 4), visited states (Figures 1 and 3) and DeepSea's scaling."""
 from __future__ import annotations
 
 import logging
@@ -12,9 +12,9 @@ from matplotlib.ticker import MaxNLocator
 
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
-from torchrl_mbe.report.runs import Run, solved_count, solved_threshold
+from torchrl_mbe.report.runs import DEEPSEA, Run, solved_count, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "mean_curve", "last_finished_episode", "save_figure"]
+__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "plot_deepsea_scaling", "mean_curve", "last_finished_episode", "save_figure"]
 
 logger = logging.getLogger(__name__)
 
@@ -101,6 +101,48 @@ def plot_frames_to_solved(env: str, groups: dict[str, list[Run]], colors: dict[s
     ax.set_ylim(bottom=0)
     ax.set_title(f"{env}: frames to solved (dots, bar: median) or run length if never solved (crosses)", fontsize=10)
     ax.grid(alpha=0.3, axis="y")
+    return save_figure(fig, path)
+
+
+def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -> Path:
+    """Episodes to solved against DeepSea's size N, log-log, beside dithering's 2^N.
+
+    ``scaling[method][N]`` are the method's runs at size N (:func:`~torchrl_mbe.report.runs.deepsea_scaling`).
+    One dot per seed that solved and a line through each method's medians over them; one cross per
+    seed that did not, stacked down from the top edge, above every run's episode count. Methods
+    are shifted a little sideways so that their markers do not hide each other.
+    """
+    fig = Figure(figsize=(8, 5.5), layout="constrained")
+    ax = fig.add_subplot()
+    top_edge = ax.get_xaxis_transform()  # x in data, y in axes coordinates
+    sizes = sorted({size for by_size in scaling.values() for size in by_size})
+    most_episodes = max(len(run.returns) for by_size in scaling.values() for runs in by_size.values() for run in runs)
+    for index, (method, by_size) in enumerate(scaling.items()):
+        color, shift = f"C{index % 10}", 1.0 + 0.025 * (index - (len(scaling) - 1) / 2)
+        medians = []
+        for size, runs in by_size.items():
+            solved = [run.episodes_to_solved for run in runs if run.episodes_to_solved is not None]
+            ax.scatter([size * shift] * len(solved), solved, color=color, alpha=0.5, s=18, zorder=3)
+            if solved:
+                medians.append((size * shift, float(np.median(solved))))
+            unsolved = len(runs) - len(solved)
+            heights = 0.97 - 0.03 * np.arange(unsolved)
+            ax.scatter([size * shift] * unsolved, heights, transform=top_edge, color=color, marker="x", s=30, zorder=4)
+        xs, ys = zip(*medians) if medians else ((), ())
+        ax.plot(xs, ys, color=color, marker="o", label=method)
+    dense = np.geomspace(sizes[0], sizes[-1], 100)  # 2^N bends on log-log axes
+    ax.plot(dense, 2.0**dense, color="0.3", linestyle="--", linewidth=1, label="dithering: 2^N")
+    ax.scatter([], [], color="0.3", marker="x", label="unsolved: one cross per seed, at the top")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylim(1, 10.0 * max(most_episodes, 2.0 ** sizes[0]))  # the crosses stay above every run's episodes
+    ax.set_xticks(sizes, [str(size) for size in sizes])
+    ax.set_xticks([], minor=True)
+    ax.set_xlabel(f"{DEEPSEA} size N")
+    ax.set_ylabel("episodes to solved")
+    ax.set_title(f"{DEEPSEA}: episodes to solved (dots: seeds, line: median of the seeds that solved)", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="lower right", fontsize=8)
     return save_figure(fig, path)
 
 

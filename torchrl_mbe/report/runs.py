@@ -9,7 +9,8 @@ that holds a ``summary.json`` is one run. A run directory contains:
   present, other fields are ignored. Methods named ``explore:<name>`` are
   exploration-only runs, every other method is a learning run.
 - ``episodes.csv``: one row per finished training episode, in order, with at
-  least the columns ``episode`` (1, 2, ...), ``return`` and ``reached_goal`` (0/1).
+  least the columns ``episode`` (1, 2, ...), ``frames`` (at the episode's end),
+  ``return`` and ``reached_goal`` (0/1).
 - ``evaluations.csv`` (optional, may be empty): greedy evaluations with at least
   ``frames`` and ``eval_return_mean``; its last row stands in for the final
   evaluation when ``final_eval_return`` is null.
@@ -19,7 +20,9 @@ that holds a ``summary.json`` is one run. A run directory contains:
 
 Runs are grouped by ``(env, method)`` across seeds. The report directory gets
 ``learning_curves_<env>.png`` (the paper's Figures 2 and 4),
-``coverage_<env>.png`` (Figures 1 and 3) and ``results.md``. A malformed file
+``coverage_<env>.png`` (Figures 1 and 3) and ``results.md``. Runs of DeepSea at
+several sizes (envs ``DeepSea-10``, ``DeepSea-20``, ...) are also grouped by method
+and size (:func:`deepsea_scaling`) for ``scaling_DeepSea.png``. A malformed file
 stops the report with a message naming it: silently dropping a run would hide data.
 """
 from __future__ import annotations
@@ -33,13 +36,19 @@ from pathlib import Path
 
 import numpy as np
 
-from torchrl_mbe.envs.registry import EnvBounds, task_of
+from torchrl_mbe.envs.registry import TASKS, EnvBounds, task_of
 from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverage
 from torchrl_mbe.rundir import EXPLORATION_PREFIX, SUMMARY, SUMMARY_FIELDS, VISITED_EPISODES, VISITED_STATES, table_file
 
-__all__ = ["RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "solved_count", "file_stem", "method_key"]
+__all__ = [
+    "RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "solved_count",
+    "file_stem", "method_key", "DEEPSEA", "deepsea_size", "deepsea_scaling",
+]
 
 logger = logging.getLogger(__name__)
+
+DEEPSEA = TASKS["deepsea"].env_id
+"""DeepSea's env id; a run of size N names its env ``DeepSea-N``."""
 
 class RunFormatError(ValueError):
     """A runs directory that cannot be reported on: missing, without runs, or with a malformed file."""
@@ -64,11 +73,18 @@ class Run:
     summary: dict = field(default_factory=dict)  # summary.json as written (see torchrl_mbe.rundir.SUMMARY_FIELDS)
     eval_frames: np.ndarray = field(default_factory=lambda: np.array([]))  # evaluations.csv: when each greedy evaluation ran
     eval_returns: np.ndarray = field(default_factory=lambda: np.array([]))  # and its mean return
+    episode_frames: np.ndarray = field(default_factory=lambda: np.array([]))  # episodes.csv: frames at each episode's end
 
     @property
     def is_exploration(self) -> bool:
         """Whether this is an exploration-only run (``method`` starts with ``explore:``)."""
         return self.method.startswith(EXPLORATION_PREFIX)
+
+    @property
+    def episodes_to_solved(self) -> int | None:
+        """Episodes finished by the first solved evaluation (``solved_at_frames``); ``None`` if there was none."""
+        solved_at = self.summary.get("solved_at_frames")
+        return None if solved_at is None else int((self.episode_frames <= solved_at).sum())
 
     def stats(self, window: int) -> EpisodeStats:
         """:func:`~torchrl_mbe.report.metrics.episode_stats` of the run's episode table."""
@@ -122,7 +138,7 @@ def _parse_number(text: str | None, path: Path, line: int, column: str) -> float
 def _read_episodes(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise RunFormatError(f"{path}: missing (every run directory needs episodes.csv beside summary.json).")
-    table = _read_csv(path, ["episode", "return", "reached_goal"])
+    table = _read_csv(path, ["episode", "frames", "return", "reached_goal"])
     if not np.array_equal(table["episode"], np.arange(1, len(table["episode"]) + 1)):
         raise RunFormatError(f"{path}: column 'episode' must count 1, 2, 3, ... one row per episode.")
     if not np.isin(table["reached_goal"], (0.0, 1.0)).all():
@@ -192,6 +208,7 @@ def _read_run(run_dir: Path) -> Run:
         summary=summary,
         eval_frames=evaluations["frames"],
         eval_returns=evaluations["eval_return_mean"],
+        episode_frames=episodes["frames"],
     )
 
 
@@ -258,6 +275,37 @@ def group_runs(runs: Sequence[Run]) -> dict[str, list[Run]]:
         label = run.method if len(configs[run.method]) == 1 else f"{run.method} [{run.tag} {run.config_id}]"
         groups.setdefault(label, []).append(run)
     return groups
+
+
+def deepsea_size(env: str) -> int | None:
+    """The N of a DeepSea run's env (``DeepSea-20`` -> 20); ``None`` for any other env.
+
+    Examples:
+        >>> from torchrl_mbe.report.runs import deepsea_size
+        >>> deepsea_size("DeepSea-20"), deepsea_size("DeepSea"), deepsea_size("MountainCar-v0")
+        (20, None, None)
+    """
+    name, _, size = env.rpartition("-")
+    return int(size) if name == DEEPSEA and size.isdigit() else None
+
+
+def deepsea_scaling(runs: Sequence[Run]) -> dict[str, dict[int, list[Run]]]:
+    """DeepSea's learning runs by group label (see :func:`group_runs`, per size) and size N, sizes ascending.
+
+    Empty unless the runs hold DeepSea at two or more sizes.
+    """
+    by_size: dict[int, list[Run]] = {}
+    for run in runs:
+        size = deepsea_size(run.env)
+        if size is not None and not run.is_exploration:
+            by_size.setdefault(size, []).append(run)
+    if len(by_size) < 2:
+        return {}
+    scaling: dict[str, dict[int, list[Run]]] = {}
+    for size in sorted(by_size):
+        for label, group in group_runs(by_size[size]).items():
+            scaling.setdefault(label, {})[size] = group
+    return dict(sorted(scaling.items(), key=lambda item: method_key(item[0])))
 
 
 def env_bounds(env: str, runs: Sequence[Run]) -> tuple[EnvBounds | None, bool]:

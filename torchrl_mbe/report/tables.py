@@ -8,9 +8,13 @@ from pathlib import Path
 import numpy as np
 
 from torchrl_mbe.envs.registry import EnvBounds
-from torchrl_mbe.report.figures import plot_coverage, plot_frames_to_solved, plot_greedy_evaluations, plot_learning_curves
+from torchrl_mbe.report.figures import (
+    plot_coverage, plot_deepsea_scaling, plot_frames_to_solved, plot_greedy_evaluations, plot_learning_curves,
+)
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
-from torchrl_mbe.report.runs import Run, env_bounds, file_stem, group_runs, plane_coverage, solved_count, solved_threshold
+from torchrl_mbe.report.runs import (
+    DEEPSEA, Run, deepsea_scaling, env_bounds, file_stem, group_runs, plane_coverage, solved_count, solved_threshold,
+)
 
 __all__ = ["write_report"]
 
@@ -43,6 +47,21 @@ def _percent_and_seeds(fractions: Sequence[float]) -> str:
     percent = 100.0 * np.asarray(fractions)
     per_seed = ", ".join(f"{v:.1f}%" for v in percent)
     return f"{percent.mean():.1f}% ± {percent.std():.1f}% [{per_seed}]"
+
+
+def _count_median_range(values: Sequence[int | None]) -> str:
+    """``found/runs, median [min, max]`` of the values that are not ``None``; ``0/runs`` if none is.
+
+    Examples:
+        >>> _count_median_range([120, None, 80, 400])
+        '3/4, 120 [80, 400]'
+        >>> _count_median_range([None, None])
+        '0/2'
+    """
+    present = [v for v in values if v is not None]
+    if not present:
+        return f"0/{len(values)}"
+    return f"{len(present)}/{len(values)}, {_fmt(float(np.median(present)), 0)} [{min(present)}, {max(present)}]"
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
@@ -242,6 +261,34 @@ def _env_section(
     return lines, written
 
 
+def _deepsea_scaling_section(
+    scaling: dict[str, dict[int, list[Run]]], out_dir: Path, window: int
+) -> tuple[list[str], list[Path]]:
+    """The scaling figure and tables of DeepSea at several sizes: one row per method, one column per N."""
+    sizes = sorted({size for by_size in scaling.values() for size in by_size})
+    header = ["method", *(f"N = {size}" for size in sizes)]
+
+    def rows(episode_of: Callable[[Run], int | None]) -> list[list[str]]:
+        return [
+            [method, *(_count_median_range([episode_of(r) for r in by_size[n]]) if n in by_size else _MISSING for n in sizes)]
+            for method, by_size in scaling.items()
+        ]
+
+    written: list[Path] = []
+    figure = plot_deepsea_scaling(scaling, out_dir / f"scaling_{DEEPSEA}.png")
+    lines = [f"## {DEEPSEA}: scaling with size N", "", *_embed(figure, "episodes to solved against N", written)]
+    lines += ["### Episodes to solved", "", *_table(header, rows(lambda run: run.episodes_to_solved)), ""]
+    lines += ["### Episodes to the first treasure", "", *_table(header, rows(lambda run: run.stats(window).first_success_episode)), ""]
+    lines += [
+        "Cells: seeds that got there / seeds run, then the median [min, max] over the seeds that did; `–`: not run. "
+        "Episodes to solved: training episodes finished by the first periodic greedy evaluation at or above the "
+        "threshold (`solved_at_frames`; unsolved: never one). First treasure: the first training episode that reached "
+        "it. Dithering needs about 2^N episodes to find the treasure once (bsuite, Osband et al. 2020), the dashed line.",
+        "",
+    ]
+    return lines, written
+
+
 def _embed(figure: Path | None, alt: str, written: list[Path]) -> list[str]:
     """The markdown lines showing ``figure`` (none if it was not drawn); records it in ``written``."""
     if figure is None:
@@ -277,6 +324,11 @@ def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100,
         env_lines, env_figures = _env_section(env, [r for r in runs if r.env == env], out_dir, window, bins)
         lines += env_lines
         written += env_figures
+    scaling = deepsea_scaling(runs)
+    if scaling:
+        scaling_lines, scaling_figures = _deepsea_scaling_section(scaling, out_dir, window)
+        lines += scaling_lines
+        written += scaling_figures
     lines.append(_DEFINITIONS.format(w=window))
     results = out_dir / "results.md"
     results.write_text("\n".join(lines) + "\n")
