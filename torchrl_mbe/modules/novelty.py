@@ -268,31 +268,35 @@ class RollingGaussianDensity(RollingWindowNovelty):
         """``-log_prob(states)``: higher = rarer."""
         return -self.log_prob(states)
 
-    def _correlation(self, covariance: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
-        """The correlation matrix the density uses (subclasses may simplify it)."""
-        return covariance / (std.unsqueeze(-1) * std.unsqueeze(-2))
-
     def _refit(self) -> None:
         """Mean, whitening matrix and normalizer of the window; slot order is fine, the fit ignores order."""
-        if not torch.compiler.is_compiling():
-            stored = self.states[..., : self.num_stored, :].to(torch.float64)
-            if stored.shape[-2] == 0:
-                return
-            loc = stored.mean(-2)
-            centered = stored - loc.unsqueeze(-2)
-            covariance = centered.mT @ centered / max(stored.shape[-2] - 1, 1)
-        else:  # every slot, the empty ones weighing nothing (an empty window fits zeros, which no score reads)
-            stored, filled = self._scored_window()
-            stored, weights, count = stored.to(torch.float64), filled.to(torch.float64).unsqueeze(-1), filled.sum()
-            loc = (stored * weights).sum(-2) / count.clamp_min(1)
-            centered = (stored - loc.unsqueeze(-2)) * weights
-            covariance = centered.mT @ centered / (count - 1).clamp_min(1)
+        moments = self._window_moments()
+        if moments is None:
+            return
+        loc, centered, degrees = moments
+        covariance = centered.mT @ centered / degrees
         std = covariance.diagonal(dim1=-2, dim2=-1).clamp_min(self.min_variance).sqrt()
-        eigenvalues, eigenvectors = torch.linalg.eigh(self._correlation(covariance, std))
+        eigenvalues, eigenvectors = torch.linalg.eigh(covariance / (std.unsqueeze(-1) * std.unsqueeze(-2)))
         eigenvalues = eigenvalues.clamp_min(self.min_correlation_eigenvalue)
         # Sigma = diag(std) V diag(lambda) V^T diag(std)  =>  W = diag(lambda^-1/2) V^T diag(1/std)
         whitening = (eigenvectors / eigenvalues.sqrt().unsqueeze(-2)).mT / std.unsqueeze(-2)
-        log_det = eigenvalues.log().sum(-1) + 2 * std.log().sum(-1)
+        self._store_fit(loc, whitening, eigenvalues.log().sum(-1) + 2 * std.log().sum(-1))
+
+    def _window_moments(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | int] | None:
+        """The window's mean, its states minus the mean (float64) and the degrees of freedom; ``None`` when empty."""
+        if not torch.compiler.is_compiling():
+            stored = self.states[..., : self.num_stored, :].to(torch.float64)
+            if stored.shape[-2] == 0:
+                return None
+            loc = stored.mean(-2)
+            return loc, stored - loc.unsqueeze(-2), max(stored.shape[-2] - 1, 1)
+        # every slot, the empty ones weighing nothing (an empty window fits zeros, which no score reads)
+        stored, filled = self._scored_window()
+        stored, weights, count = stored.to(torch.float64), filled.to(torch.float64).unsqueeze(-1), filled.sum()
+        loc = (stored * weights).sum(-2) / count.clamp_min(1)
+        return loc, (stored - loc.unsqueeze(-2)) * weights, (count - 1).clamp_min(1)
+
+    def _store_fit(self, loc: torch.Tensor, whitening: torch.Tensor, log_det: torch.Tensor) -> None:
         self.loc.copy_(loc)
         self.whitening.copy_(whitening)
         self.log_normalizer.copy_(0.5 * (log_det + self.num_features * math.log(2 * math.pi)))
@@ -379,8 +383,18 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         True
     """
 
-    def _correlation(self, covariance: torch.Tensor, std: torch.Tensor) -> torch.Tensor:
-        return torch.eye(self.num_features, dtype=covariance.dtype, device=covariance.device).expand_as(covariance)
+    def _refit(self) -> None:
+        """Mean and per-dimension spread of the window: ``O(window * D)``, no ``D x D`` covariance, no ``eigh``.
+
+        The same density as the full Gaussian with its correlation matrix set to the
+        identity (whose eigenvalues are 1), so the whitening matrix is ``diag(1/std)``.
+        """
+        moments = self._window_moments()
+        if moments is None:
+            return
+        loc, centered, degrees = moments
+        std = (centered.square().sum(-2) / degrees).clamp_min(self.min_variance).sqrt()
+        self._store_fit(loc, torch.diag_embed(1 / std), 2 * std.log().sum(-1))
 
 
 def _offsets_in_window_spreads(
