@@ -20,23 +20,6 @@ def one_hot(actions: torch.Tensor) -> torch.Tensor:
     return torch.nn.functional.one_hot(actions, 3)
 
 
-def gymnasium_episode(
-    state: torch.Tensor, actions: torch.Tensor, max_episode_steps: int
-) -> tuple[torch.Tensor, list[tuple[float, bool, bool]], torch.Tensor]:
-    """``gym.make("Acrobot-v1")`` from ``state`` under ``actions`` until done: observations, outcomes, last state."""
-    env = gym.make("Acrobot-v1", max_episode_steps=max_episode_steps)
-    env.reset(seed=0)
-    env.unwrapped.state = state.numpy().copy()
-    observations, outcomes = [], []
-    for action in actions.tolist():
-        observation, reward, terminated, truncated, _ = env.step(action)
-        observations.append(observation)
-        outcomes.append((reward, terminated, truncated))
-        if terminated or truncated:
-            break
-    return torch.from_numpy(np.stack(observations)), outcomes, torch.from_numpy(env.unwrapped.state)
-
-
 def test_start_states_are_float32_draws_uniform_in_gymnasiums_range():
     env = BatchedAcrobotEnv(4096, seed=0)
     observation = env.reset()["observation"]
@@ -87,7 +70,7 @@ def test_one_step_equals_gymnasiums_from_states_all_over_the_state_space():
     assert 0 < sum(terminated for _, terminated in outcomes) < num_states
 
 
-def test_trajectories_equal_gymnasiums_over_200_steps_including_termination_and_truncation():
+def test_trajectories_equal_gymnasiums_over_200_steps_including_termination_and_truncation(gymnasium_episode):
     """From starts, near the bar and at top speed, under random torques: the same steps; truncation at the limit."""
     num_envs, horizon = 16, 200
     env = BatchedAcrobotEnv(num_envs, max_episode_steps=horizon, seed=0)
@@ -113,7 +96,7 @@ def test_trajectories_equal_gymnasiums_over_200_steps_including_termination_and_
     ours, states = torch.stack(ours, 1), torch.stack(states, 1)
     lengths = []
     for i in range(num_envs):
-        observations, outcomes, final_state = gymnasium_episode(starts[i], actions[:, i], horizon)
+        observations, outcomes, final_state = gymnasium_episode("Acrobot-v1", starts[i], actions[:, i], max_episode_steps=horizon)
         length = len(outcomes)
         torch.testing.assert_close(ours[i, :length]["observation"], observations, atol=1e-5, rtol=0)
         assert outcomes == list(

@@ -1,7 +1,5 @@
 from __future__ import annotations
 
-import gymnasium as gym
-import numpy as np
 import torch
 from torchrl.collectors import Collector
 from torchrl.envs import GymEnv, SerialEnv
@@ -14,30 +12,13 @@ BALANCE = torch.tensor([0.5, 1.0, 10.0, 2.0], dtype=torch.float64)
 """Push towards ``BALANCE @ state > 0``: keeps the pole up for the whole 500-step limit."""
 
 
-def gymnasium_episode(
-    state: torch.Tensor, actions: torch.Tensor
-) -> tuple[torch.Tensor, list[tuple[float, bool, bool]]]:
-    """``gym.make("CartPole-v1")`` (its TimeLimit included) from ``state`` under ``actions`` until done."""
-    env = gym.make("CartPole-v1")
-    env.reset(seed=0)
-    env.unwrapped.state = state.numpy().copy()
-    observations, outcomes = [], []
-    for action in actions.tolist():
-        observation, reward, terminated, truncated, _ = env.step(action)
-        observations.append(observation)
-        outcomes.append((reward, terminated, truncated))
-        if terminated or truncated:
-            break
-    return torch.from_numpy(np.stack(observations)), outcomes
-
-
 def test_start_states_are_uniform_in_gymnasiums_range():
     start = BatchedCartPoleEnv(4096, seed=0).reset()["observation"]
     assert start.abs().max() <= 0.05 and (start.amin(0) < -0.0499).all() and (start.amax(0) > 0.0499).all()
     torch.testing.assert_close(start.mean(0), torch.zeros(4), atol=0.003, rtol=0)
 
 
-def test_trajectories_equal_gymnasiums_including_termination_and_truncation():
+def test_trajectories_equal_gymnasiums_including_termination_and_truncation(gymnasium_episode):
     """Same states, same actions: failing cart and pole fall at once, random pushes soon after, balancing lasts 500."""
     num_envs, horizon = 12, 500
     env = BatchedCartPoleEnv(num_envs, seed=0)
@@ -66,7 +47,7 @@ def test_trajectories_equal_gymnasiums_including_termination_and_truncation():
     ours = torch.stack(ours, 1)
     lengths = []
     for i in range(num_envs):
-        observations, outcomes = gymnasium_episode(starts[i], actions[:, i])
+        observations, outcomes, _ = gymnasium_episode("CartPole-v1", starts[i], actions[:, i])
         length = len(outcomes)
         torch.testing.assert_close(ours[i, :length]["observation"], observations, atol=1e-5, rtol=0)
         assert outcomes == list(
