@@ -153,6 +153,66 @@ def test_a_loaded_state_dict_scores_the_same(scored_before_saving):
     assert torch.equal(restored.score(queries), density.score(queries))
 
 
+class DenseGaussianDensity(RollingGaussianDensity):
+    """The whitening path (``eigh`` of the ``D x D`` correlation) at every size: the low-rank path's reference."""
+
+    def _fits_low_rank(self) -> bool:
+        return False
+
+
+def with_constant_and_repeated_states(states: torch.Tensor) -> torch.Tensor:
+    """``states`` with feature 3 constant and the last 5 states visited again."""
+    states = states.clone()
+    states[..., 3] = 2.0
+    return torch.cat([states, states[-5:]])
+
+
+def one_hot_path(num_cells: int, steps: int, batch: int) -> torch.Tensor:
+    """DeepSea-like one-hot states (rows of the identity), visiting only the first third of the cells."""
+    return torch.eye(num_cells)[torch.randint(0, num_cells // 3, (steps, batch))]
+
+
+LOW_RANK_WINDOWS = {  # (steps, batch, features) states, window 50
+    "partly-filled": lambda: with_constant_and_repeated_states(torch.randn(20, 3, 120)),
+    "wrapped-round": lambda: with_constant_and_repeated_states(torch.randn(130, 3, 120)),
+    "one-hot-deepsea-20": lambda: one_hot_path(400, 70, 3),
+    "single-state": lambda: torch.randn(1, 3, 120),
+}
+
+
+@pytest.mark.parametrize("make_window", LOW_RANK_WINDOWS.values(), ids=LOW_RANK_WINDOWS.keys())
+def test_the_low_rank_fit_gives_the_density_of_the_dense_eigh_fit(make_window):
+    visits = make_window()
+    num_features = visits.shape[-1]
+    low_rank, dense = RollingGaussianDensity(window=50, batch_shape=(3,)), DenseGaussianDensity(window=50, batch_shape=(3,))
+    for density in (low_rank, dense):
+        density.update(visits)
+    assert "gram_eigenvectors" in low_rank.state_dict() and "whitening" not in low_rank.state_dict()
+    unseen_one_hot = torch.eye(num_features)[torch.randint(0, num_features, (5, 3))]
+    queries = torch.cat([visits[-5:], unseen_one_hot, torch.randn(5, 3, num_features)]).double()
+    torch.testing.assert_close(low_rank.log_prob(queries), dense.log_prob(queries), rtol=1e-8, atol=1e-6)
+    torch.testing.assert_close(low_rank.covariance_matrix, dense.covariance_matrix, rtol=1e-5, atol=1e-10)
+
+
+def test_the_fit_is_low_rank_exactly_when_there_are_more_features_than_window_slots():
+    def buffers(num_features: int) -> set[str]:
+        return set(RollingGaussianDensity(num_features, window=50).state_dict())
+
+    low_rank_fit = {"std", "standardized_window", "eigenvalues", "gram_eigenvectors"}
+    assert "whitening" in buffers(50) and not low_rank_fit & buffers(50)
+    assert low_rank_fit <= buffers(51) and "whitening" not in buffers(51)
+    assert "whitening" in DiagonalGaussianDensity(51, window=50).state_dict()
+
+
+def test_a_low_rank_fit_travels_in_the_state_dict_to_a_fresh_density():
+    density = RollingGaussianDensity(window=50, batch_shape=(3,))
+    density.update(one_hot_path(400, 70, 3))
+    queries = one_hot_path(400, 2, 3)
+    scores = density.score(queries)
+    fresh = RollingGaussianDensity(window=50, batch_shape=(3,))
+    fresh.load_state_dict(density.state_dict())
+    assert not fresh.fit_stale and torch.equal(fresh.score(queries), scores)
+
 
 ALL_SCORERS = [RollingGaussianDensity, GaussianKernelNovelty, DiagonalGaussianDensity, KNearestNovelty, KernelDensityNovelty]
 
@@ -170,13 +230,17 @@ def test_scorers_infer_the_state_size_from_the_first_update_and_restore_into_a_f
     assert torch.allclose(fresh.score(probe), scorer.score(probe))
 
 
-@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
-def test_every_scorer_compiles_with_fullgraph_and_scores_as_it_does_eagerly(scorer_cls):
-    scorer = scorer_cls(2, window=6, batch_shape=(3,))
+@pytest.mark.parametrize(
+    ("scorer_cls", "num_features"),
+    [(scorer_cls, 2) for scorer_cls in ALL_SCORERS] + [(RollingGaussianDensity, 8)],  # 8 > window: the low-rank fit
+    ids=[scorer_cls.__name__ for scorer_cls in ALL_SCORERS] + ["RollingGaussianDensity-low-rank"],
+)
+def test_every_scorer_compiles_with_fullgraph_and_scores_as_it_does_eagerly(scorer_cls, num_features):
+    scorer = scorer_cls(num_features, window=6, batch_shape=(3,))
     compiled_score = torch.compile(scorer.score, fullgraph=True, backend="aot_eager")
-    queries = torch.randn(4, 3, 2)
+    queries = torch.randn(4, 3, num_features)
     for visits in (0, 2, 4, 3):  # empty, 2 of 6 slots (fewer than KNearestNovelty's k), 6, wrapped round
-        scorer.update(torch.randn(visits, 3, 2))
+        scorer.update(torch.randn(visits, 3, num_features))
         eager = scorer.score(queries)  # first: a compiled score refits the Gaussian its own way
         torch.testing.assert_close(compiled_score(queries), eager, rtol=1e-5, atol=1e-5)
     scorer.reset()

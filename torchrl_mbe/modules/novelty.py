@@ -192,10 +192,16 @@ class RollingGaussianDensity(RollingWindowNovelty):
       small but positive spread, so a prediction that leaves the window's
       subspace scores as very rare instead of infinitely rare.
 
-    The factorization (float64 ``eigh`` of a ``num_features``-square matrix) is
-    computed once per window change, at the first score after it, and cached as
-    a whitening matrix: scoring every candidate action of a step costs one
-    matrix product, and window updates that are never scored cost no fit.
+    The factorization is computed once per window change, at the first score
+    after it, and cached: scoring every candidate action of a step costs only
+    matrix products, and window updates that are never scored cost no fit. With
+    ``num_features <= window`` it is a float64 ``eigh`` of the ``D x D``
+    correlation matrix, cached as a whitening matrix. With more features than
+    the window holds states (one-hot DeepSea grids: ``D = N^2``), the correlation
+    has rank below ``window``, so the same floored density comes from the
+    ``eigh`` of the ``window x window`` Gram matrix, cached with the standardized
+    window: ``O(window^2 D)`` instead of ``O(D^3)``, and as fast at
+    ``D = window``, where the two paths meet (``bench/novelty.py``).
 
     Args:
         num_features (int, optional): size of a state vector; inferred from the first update if ``None``.
@@ -243,13 +249,29 @@ class RollingGaussianDensity(RollingWindowNovelty):
         shape = (*self.batch_shape, num_features)
         kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
         self.register_buffer("loc", torch.zeros(shape, **kwargs))
-        self.register_buffer("whitening", torch.zeros(*shape, num_features, **kwargs))
+        if self._fits_low_rank():
+            self.register_buffer("std", torch.ones(shape, **kwargs))
+            self.register_buffer("standardized_window", torch.zeros(*self.batch_shape, self.window, num_features, **kwargs))
+            self.register_buffer("eigenvalues", torch.ones(*self.batch_shape, self.window, **kwargs))
+            self.register_buffer("gram_eigenvectors", torch.zeros(*self.batch_shape, self.window, self.window, **kwargs))
+        else:
+            self.register_buffer("whitening", torch.zeros(*shape, num_features, **kwargs))
         self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
+
+    def _fits_low_rank(self) -> bool:
+        """Whether the fit is the eigenpairs of the window's Gram matrix (more features than states), not a whitening."""
+        return self.num_features > self.window
 
     @property
     def covariance_matrix(self) -> torch.Tensor:
         """The regularized covariance the density uses, ``(*batch_shape, D, D)``."""
         self._refit_if_stale()
+        if self._fits_low_rank():
+            floor = self.min_correlation_eigenvalue
+            eigenvectors = self.gram_eigenvectors @ self.standardized_window
+            raised = (self.eigenvalues - floor).unsqueeze(-1) * eigenvectors
+            correlation = eigenvectors.mT @ raised + floor * torch.eye(self.num_features).to(raised)
+            return (self.std.unsqueeze(-1) * correlation * self.std.unsqueeze(-2)).to(self.states.dtype)
         inverse = torch.linalg.inv(self.whitening)
         return (inverse @ inverse.mT).to(self.states.dtype)
 
@@ -260,20 +282,41 @@ class RollingGaussianDensity(RollingWindowNovelty):
         states = self._check_shape(states)
         self._refit_if_stale()
         centered = states.to(self.loc) - self.loc
-        whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
-        mahalanobis = whitened.square().sum(-1)
+        mahalanobis = (self._low_rank_mahalanobis if self._fits_low_rank() else self._whitened_mahalanobis)(centered)
         return self._zeros_while_empty((-0.5 * mahalanobis - self.log_normalizer).to(states.dtype))
+
+    def _whitened_mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+        whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
+        return whitened.square().sum(-1)
+
+    def _low_rank_mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+        """``|x|^2 / floor + sum_i (1 / lambda_i - 1 / floor) (u_i . x)^2`` with ``x = centered / std``.
+
+        ``einsum``, unlike a broadcast ``@``, does not copy the window's matrices once per sample.
+        """
+        floor = self.min_correlation_eigenvalue
+        standardized = centered / self.std
+        window_products = torch.einsum("...fd,...d->...f", self.standardized_window, standardized)
+        projections = torch.einsum("...if,...f->...i", self.gram_eigenvectors, window_products)
+        spanned_correction = ((1 / self.eigenvalues - 1 / floor) * projections.square()).sum(-1)
+        return standardized.square().sum(-1) / floor + spanned_correction
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """``-log_prob(states)``: higher = rarer."""
         return -self.log_prob(states)
 
     def _refit(self) -> None:
-        """Mean, whitening matrix and normalizer of the window; slot order is fine, the fit ignores order."""
+        """Mean, factorization and normalizer of the window; slot order is fine, the fit ignores order."""
         moments = self._window_moments()
         if moments is None:
             return
-        loc, centered, degrees = moments
+        if self._fits_low_rank():
+            self._refit_low_rank(*moments)
+        else:
+            self._refit_whitening(*moments)
+
+    def _refit_whitening(self, loc: torch.Tensor, centered: torch.Tensor, degrees: torch.Tensor | int) -> None:
+        """The whitening matrix of the floored correlation, from the ``eigh`` of the ``D x D`` correlation matrix."""
         covariance = centered.mT @ centered / degrees
         std = covariance.diagonal(dim1=-2, dim2=-1).clamp_min(self.min_variance).sqrt()
         eigenvalues, eigenvectors = torch.linalg.eigh(covariance / (std.unsqueeze(-1) * std.unsqueeze(-2)))
@@ -281,6 +324,32 @@ class RollingGaussianDensity(RollingWindowNovelty):
         # Sigma = diag(std) V diag(lambda) V^T diag(std)  =>  W = diag(lambda^-1/2) V^T diag(1/std)
         whitening = (eigenvectors / eigenvalues.sqrt().unsqueeze(-2)).mT / std.unsqueeze(-2)
         self._store_fit(loc, whitening, eigenvalues.log().sum(-1) + 2 * std.log().sum(-1))
+
+    def _refit_low_rank(self, loc: torch.Tensor, centered: torch.Tensor, degrees: torch.Tensor | int) -> None:
+        """The floored correlation's top ``window`` eigenpairs, from the ``eigh`` of the window's Gram matrix.
+
+        With ``Z = centered / std / sqrt(degrees)`` (``window x D``, the slots beyond
+        the stored states zero), the correlation ``Z^T Z`` shares its nonzero
+        eigenvalues ``lambda_i`` with ``Z Z^T`` (``window x window``), and its
+        eigenvectors are ``u_i = Z^T v_i / sqrt(lambda_i)``, kept as the window
+        ``Z sqrt(degrees)`` and the coordinates ``v_i / sqrt(lambda_i degrees)``:
+        scoring a few states against them costs less than forming the ``u_i``.
+        Flooring every eigenvalue at ``floor`` leaves the ``D - window`` others at
+        ``floor``; a pair floored here gets weight 0, whatever its vector.
+        """
+        floor = self.min_correlation_eigenvalue
+        std = (centered.square().sum(-2) / degrees).clamp_min(self.min_variance).sqrt()
+        empty_slots = self.window - centered.shape[-2]
+        standardized = nn.functional.pad(centered / std.unsqueeze(-2), (0, 0, 0, empty_slots))
+        gram_eigenvalues, gram_eigenvectors = torch.linalg.eigh(standardized @ standardized.mT / degrees)
+        eigenvalues = gram_eigenvalues.clamp_min(floor)
+        self.loc.copy_(loc)
+        self.std.copy_(std)
+        self.standardized_window.copy_(standardized)
+        self.eigenvalues.copy_(eigenvalues)
+        self.gram_eigenvectors.copy_(gram_eigenvectors.mT / (eigenvalues * degrees).sqrt().unsqueeze(-1))
+        null_space_log_det = (self.num_features - self.window) * math.log(floor)
+        self._store_log_normalizer(eigenvalues.log().sum(-1) + null_space_log_det + 2 * std.log().sum(-1))
 
     def _window_moments(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | int] | None:
         """The window's mean, its states minus the mean (float64) and the degrees of freedom; ``None`` when empty."""
@@ -299,6 +368,10 @@ class RollingGaussianDensity(RollingWindowNovelty):
     def _store_fit(self, loc: torch.Tensor, whitening: torch.Tensor, log_det: torch.Tensor) -> None:
         self.loc.copy_(loc)
         self.whitening.copy_(whitening)
+        self._store_log_normalizer(log_det)
+
+    def _store_log_normalizer(self, log_det: torch.Tensor) -> None:
+        """Stores ``log((2 pi)^(D/2) sqrt(det Sigma))`` from ``log det Sigma``."""
         self.log_normalizer.copy_(0.5 * (log_det + self.num_features * math.log(2 * math.pi)))
 
 
@@ -395,6 +468,10 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         loc, centered, degrees = moments
         std = (centered.square().sum(-2) / degrees).clamp_min(self.min_variance).sqrt()
         self._store_fit(loc, torch.diag_embed(1 / std), 2 * std.log().sum(-1))
+
+    def _fits_low_rank(self) -> bool:
+        """Never: with no correlations there are no eigenpairs, the fit is ``diag(1 / std)`` at every size."""
+        return False
 
 
 def _offsets_in_window_spreads(
