@@ -24,7 +24,10 @@ def main(cfg: DictConfig) -> float | None:
     except ConfigError as error:
         raise SystemExit(f"Error: {error}") from None
     log.info("Summary:\n%s", json.dumps(summary, indent=2))
-    log.info(summary_line(summary, HydraConfig.get().runtime.output_dir))  # the last line: solved?, time, where
+    members = summary.get("members", [summary])  # population=M: one summary per member
+    run_dirs = summary.get("run_dirs", [HydraConfig.get().runtime.output_dir])
+    for member, run_dir in zip(members, run_dirs):
+        log.info(summary_line(member, run_dir))  # the last lines: solved?, time, where
     return summary["final_eval_return"]
 
 

@@ -53,6 +53,7 @@ __all__ = [
     "config_differences",
     "config_id",
     "method_name",
+    "seeds_name",
     "with_size",
     "register_configs",
 ]
@@ -166,6 +167,7 @@ class Config:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     seed: int = setting(0, NON_NEGATIVE_INT)
+    population: int = setting(1, POSITIVE_INT)  # >1: agents of seeds seed .. seed+population-1 trained as one batched program
     device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
     tag: str = "default"  # part of the run directory; presets set their own
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
@@ -196,6 +198,8 @@ def register_configs() -> None:
         OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
     if not OmegaConf.has_resolver("env_name"):  # ... and after the env, with its size
         OmegaConf.register_new_resolver("env_name", lambda *, _root_: with_size(_root_.env.name, _root_.env.size))
+    if not OmegaConf.has_resolver("seeds"):  # ... and after the seed, or a population's seeds
+        OmegaConf.register_new_resolver("seeds", lambda *, _root_: seeds_name(_root_.seed, _root_.population))
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -249,6 +253,24 @@ def _check_together(config: Config) -> None:
             raise ConfigError(f"algo (eps_init, eps_end, eps_schedule): {error}") from None
     if is_planning(config) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
         raise ConfigError(f"dynamics=oracle: the oracle exists for MountainCar-v0 only, not {config.env.name}.")
+    if config.population > 1:
+        _check_population(config, env_id)
+
+
+def _check_population(config: Config, env_id: str) -> None:
+    """What a population (``population > 1``) trains with: DQN, a member-batched explorer and env, uniform replay."""
+    refusal = f"population={config.population}"
+    if not isinstance(config.algo, DQNConfig):
+        raise ConfigError(f"{refusal}: only algo=dqn trains populations; use population=1 for algo={config.algo.name}.")
+    if not explorer_of(config.exploration).trains_in_populations:
+        raise ConfigError(f"{refusal}: exploration={config.exploration.name} trains one agent per process; use population=1.")
+    with_torch = sorted(name for name, task in TASKS.items() if task.torch_env is not None)
+    if all(task.env_id != env_id or task.torch_env is None for task in TASKS.values()):
+        raise ConfigError(f"{refusal}: {env_id} has no torch-batched implementation (populations run on {', '.join(with_torch)}); use population=1.")
+    if config.buffer.name != "uniform":
+        raise ConfigError(f"{refusal}: buffer={config.buffer.name} keeps one priority tree for all members; use buffer=uniform or population=1.")
+    if is_planning(config) and config.exploration.model_error_threshold is not None:
+        raise ConfigError(f"{refusal}: exploration.model_error_threshold switches one warm-up for all members; leave it null or use population=1.")
 
 
 def _check_device(device: str) -> None:
@@ -290,6 +312,17 @@ def with_size(env: str, size: int | None) -> str:
     return env if size is None else f"{env}-{size}"
 
 
+def seeds_name(seed: int, population: int) -> str:
+    """What a run directory is called after its seeds: ``seed3``, or a population's ``seeds0-4``.
+
+    Examples:
+        >>> from torchrl_mbe.app.config import seeds_name
+        >>> seeds_name(3, 1), seeds_name(0, 5)
+        ('seed3', 'seeds0-4')
+    """
+    return f"seed{seed}" if population == 1 else f"seeds{seed}-{seed + population - 1}"
+
+
 def is_planning(cfg: DictConfig | Config) -> bool:
     """Whether the configured explorer plans with a dynamics model."""
     return issubclass(explorer_of(cfg.exploration), PlanningExplorer)
@@ -327,8 +360,8 @@ def config_id(cfg: DictConfig) -> str:
     return hashlib.sha1(json.dumps(shaping, sort_keys=True, default=str).encode()).hexdigest()[:8]
 
 
-# Keys that change where and how a run is shown, not what it computes.
-_PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag")
+# Keys that change where and how a run is shown, or how seeds share a process, not what a run (a member) computes.
+_PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag", "population")
 
 # Settings added after torchrl-mbe 0.2.0, whose unset (null) value changes nothing that version computed.
 _ADDED_SETTINGS = ("env.size",)

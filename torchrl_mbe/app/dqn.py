@@ -38,8 +38,9 @@ from torchrl_mbe.app.run import (
 )
 from torchrl_mbe.modules.networks import make_per_action_mlp
 from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.population import PopulationDQNLoss, make_population_q_actor
 
-__all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "train_dqn"]
+__all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "num_members", "train_dqn"]
 
 
 def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
@@ -124,6 +125,7 @@ class DQNAgent:
         self.actor, self.explorer, self.q_loss, self.target_updater, self.q_step = actor, explorer, q_loss, target_updater, q_step
         self.q_input_norm, self.settings = q_input_norm, settings
         self.standardizes_inputs = any(module is q_input_norm for module in actor.modules())
+        self.members = q_step.num_members or 1  # a population's agents learn together, each from its own frames
         self.q_updates, self.q_update_credit = 0, 0.0
 
     @property
@@ -137,9 +139,11 @@ class DQNAgent:
         The explorer sees the batch and takes its own updates; after
         ``learning_starts`` frames eps anneals and the Q-network takes
         ``updates_per_frame`` steps per new frame. Returns a row of the updates
-        table every ``log_every_updates`` Q updates.
+        table every ``log_every_updates`` Q updates. In a population, ``frames``
+        and the schedule count each member's frames, and a row's losses are
+        lists (one per member).
         """
-        new_frames, settings = batch.numel(), self.settings
+        new_frames, settings = batch.numel() // self.members, self.settings
         self.explorer.observe(batch)
         self.explorer.learn(replay_buffer, frames, new_frames)
         if frames < settings.learning_starts:
@@ -204,11 +208,11 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         >>> type(agent.explorer).__name__, env.rollout(3)["next", "intrinsic_reward"].shape
         ('RNDExplorer', torch.Size([4, 3, 1]))
     """
-    algo, device = cfg.algo, torch.device(cfg.device)
+    algo, device, members = cfg.algo, torch.device(cfg.device), num_members(cfg)
     explorer_class = explorer_of(cfg.exploration)
     action_spec = env.action_spec_unbatched.to(device)
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
-    q_input_norm = Standardize(observation_size, device=device)
+    q_input_norm = Standardize(observation_size if members is None else (members, observation_size), device=device)
     actor = make_q_actor(
         observation_size,
         action_spec,
@@ -216,13 +220,23 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         device,
         input_norm=q_input_norm if algo.standardize_inputs else None,
         noise_std=explorer_class.q_network_noise(cfg.exploration),
+        num_members=members,
     )
-    q_loss = DQNLoss(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
+    loss_class, loss_key = (DQNLoss, "loss") if members is None else (PopulationDQNLoss, "member_loss")
+    q_loss = loss_class(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
     _resolve_input_keys(q_loss)
-    explorer = explorer_class.build(ExplorerContext(cfg, env, actor, q_loss, action_spec, observation_size, device))
-    q_step = GradientStep(lambda batch: q_loss(batch)["loss"], adam(q_loss.parameters(), algo.lr), algo.max_grad_norm, compile=cfg.compile)
+    context = ExplorerContext(cfg, env, actor, q_loss, action_spec, observation_size, device, members)
+    explorer = explorer_class.build(context)
+    q_step = GradientStep(
+        lambda batch: q_loss(batch)[loss_key], adam(q_loss.parameters(), algo.lr), algo.max_grad_norm, compile=cfg.compile, num_members=members
+    )
     return DQNAgent(actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg))
+
+
+def num_members(cfg: DictConfig) -> int | None:
+    """The population's size M with ``population=M > 1``; ``None`` for a single agent (``population=1``)."""
+    return cfg.population if cfg.population > 1 else None
 
 
 def _resolve_input_keys(q_loss: DQNLoss) -> None:
@@ -238,12 +252,16 @@ def make_q_actor(
     *,
     input_norm: Standardize | None = None,
     noise_std: float | None = None,
+    num_members: int | None = None,
 ) -> QValueActor:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
 
     With ``input_norm`` the MLP reads observations standardized by it; with
-    ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`).
+    ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
+    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.population.make_population_q_actor`).
     """
+    if num_members is not None:
+        return make_population_q_actor(observation_size, action_spec, num_cells, num_members, input_norm=input_norm, device=device)
     network = make_per_action_mlp(observation_size, action_spec, num_cells, device=device, noise_std=noise_std)
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)

@@ -31,7 +31,7 @@ from torchrl.modules import MLP, QValueActor, reset_noise
 from torchrl.objectives import DQNLoss, RNDLoss
 
 from torchrl_mbe.app.optim import GradientStep, adam
-from torchrl_mbe.app.replay import SUCCESSOR_KEY, one_step_transitions
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import MountainCarDynamics
 from torchrl_mbe.modules.dynamics import DynamicsModel
@@ -69,6 +69,7 @@ class ExplorerContext:
     action_spec: TensorSpec
     observation_size: int
     device: torch.device
+    num_members: int | None = None  # a population's size M (the env batch is [num_envs, M]); None: one agent
 
 
 class Explorer:
@@ -79,6 +80,7 @@ class Explorer:
 
     schema: ClassVar[type[ExplorationConfig]] = NoExploration
     intrinsic_coef: float | None = None  # the Q-network learns reward + intrinsic_coef * ("next", "intrinsic_reward")
+    trains_in_populations: ClassVar[bool] = True  # whether it builds with ExplorerContext.num_members (population=N)
 
     def __init__(self, policy: TensorDictModuleBase) -> None:
         self.policy = policy
@@ -192,6 +194,7 @@ class RNDExplorer(EGreedyExplorer):
     """
 
     schema = RNDExploration
+    trains_in_populations = False  # TorchRL's RNDTransform keeps one predictor and one set of running statistics
 
     def __init__(self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float) -> None:
         super().__init__(policy, eps_module)
@@ -242,6 +245,7 @@ class NoisyExplorer(Explorer):
     """``exploration=noisy``: the Q-network's own noise explores; it is resampled after every Q update."""
 
     schema = NoisyExploration
+    trains_in_populations = False  # TorchRL's NoisyLinear layers have no member dimension
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -274,7 +278,13 @@ class DynamicsTraining:
 
     def __init__(self, model: DynamicsModel, loss: DynamicsLoss, dynamics: DictConfig, *, compile: bool) -> None:
         self.model = model
-        self.step = GradientStep(lambda batch: loss(batch)["loss_dynamics"], adam(model.parameters(), dynamics.lr), dynamics.max_grad_norm, compile=compile)
+        self.step = GradientStep(
+            lambda batch: loss(batch)["loss_dynamics"],
+            adam(model.parameters(), dynamics.lr),
+            dynamics.max_grad_norm,
+            compile=compile,
+            num_members=model.num_members,
+        )
         self.learning_starts, self.updates_per_frame, self.batch_size = dynamics.learning_starts, dynamics.updates_per_frame, dynamics.batch_size
         self.updates, self.credit, self.last_loss = 0, 0.0, None
 
@@ -314,11 +324,14 @@ class PlanningExplorer(EGreedyExplorer):
     schema = PlanningExploration
     scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
-    def __init__(self, policy: ModelBasedExplorationPolicy, loss: DynamicsLoss, training: DynamicsTraining | None) -> None:
+    def __init__(
+        self, policy: ModelBasedExplorationPolicy, loss: DynamicsLoss, training: DynamicsTraining | None, num_members: int | None = None
+    ) -> None:
         super().__init__(policy, policy)
         self.loss = loss
         self.training = training  # None for the oracle, which has nothing to learn
-        self.val_error: float | None = None
+        self.num_members = num_members
+        self.val_error: torch.Tensor | None = None  # float64, [M] in a population
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -327,7 +340,9 @@ class PlanningExplorer(EGreedyExplorer):
         if cfg.dynamics.name == "oracle":
             dynamics = MountainCarDynamics(context.action_spec)
         else:
-            dynamics = DynamicsModel(context.observation_size, context.action_spec, cfg.dynamics.num_cells, device=context.device)
+            dynamics = DynamicsModel(
+                context.observation_size, context.action_spec, cfg.dynamics.num_cells, num_members=context.num_members, device=context.device
+            )
         novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
         policy = ModelBasedExplorationPolicy(
@@ -336,7 +351,7 @@ class PlanningExplorer(EGreedyExplorer):
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
         training = DynamicsTraining(dynamics, loss, cfg.dynamics, compile=cfg.compile) if isinstance(dynamics, DynamicsModel) else None
-        return cls(policy, loss, training)
+        return cls(policy, loss, training, context.num_members)
 
     @classmethod
     def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
@@ -354,19 +369,20 @@ class PlanningExplorer(EGreedyExplorer):
         return f"{cls.schema.name}-oracle" if cfg.dynamics.name == "oracle" else cls.schema.name
 
     def observe(self, batch: TensorDictBase) -> None:
-        """The dynamics error on the new frames (not yet trained on), smoothed; feeds the warm-up switch."""
-        frames = one_step_transitions(batch).reshape(-1)
+        """The dynamics error on the new frames (not yet trained on), smoothed (each member's); feeds the warm-up switch."""
+        frames = flatten_frames(one_step_transitions(batch), self.num_members)
         with torch.no_grad():
-            error = float(self.loss(frames)["loss_dynamics"])
+            error = self.loss(frames)["loss_dynamics"].double()
         self.val_error = error if self.val_error is None else 0.9 * self.val_error + 0.1 * error
-        self.policy.report_model_error(self.val_error)
+        self.policy.report_model_error(float(self.val_error.max()))  # populations refuse model_error_threshold
 
     def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
         if self.training is not None:
             self.training.learn(replay_buffer, frames, new_frames)
 
     def log_fields(self) -> dict[str, float | None]:
-        return {"loss_dynamics": self.training.last_loss if self.training is not None else None, "dynamics_val_error": self.val_error}
+        val_error = self.val_error.tolist() if self.val_error is not None else None
+        return {"loss_dynamics": self.training.last_loss if self.training is not None else None, "dynamics_val_error": val_error}
 
     def summary_fields(self) -> dict[str, int]:
         return {"dynamics_updates": self.training.updates if self.training is not None else 0}

@@ -6,6 +6,8 @@ import logging
 import torch
 from tensordict import TensorDictBase
 
+from torchrl_mbe.modules.population import clip_grad_norm_per_member_
+
 __all__ = ["GradientStep", "adam"]
 
 log = logging.getLogger(__name__)
@@ -29,34 +31,55 @@ class GradientStep:
     a warning says so and the step runs eagerly from then on. Clipping and the
     optimizer step stay eager (they break graphs).
 
+    A population's step (``num_members``) takes ``loss(batch) -> [M]``, one loss per
+    member, back-propagates their sum and clips each member's gradient on its own
+    (:func:`~torchrl_mbe.modules.population.clip_grad_norm_per_member_`): members
+    never share a norm, and Adam's update is elementwise.
+
     Args:
-        loss (callable): ``loss(batch) -> scalar tensor``.
+        loss (callable): ``loss(batch) -> scalar tensor`` (``[M]`` with ``num_members``).
         optimizer (torch.optim.Optimizer): steps the parameters the loss depends on.
-        max_grad_norm (float, optional): clips the gradient norm of each parameter group.
+        max_grad_norm (float, optional): clips the gradient norm of each parameter group (of each member's).
 
     Keyword Args:
         compile (bool): compile the loss and backward. Defaults to ``False``.
+        num_members (int, optional): the population size, whose parameters are stacked ``[M, ...]``.
     """
 
-    def __init__(self, loss, optimizer: torch.optim.Optimizer, max_grad_norm: float | None, *, compile: bool = False) -> None:
+    def __init__(
+        self,
+        loss,
+        optimizer: torch.optim.Optimizer,
+        max_grad_norm: float | None,
+        *,
+        compile: bool = False,
+        num_members: int | None = None,
+    ) -> None:
         self.loss = loss
         self.optimizer = optimizer
         self.max_grad_norm = max_grad_norm
+        self.num_members = num_members
         self._loss_and_backward = torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
 
-    def __call__(self, batch: TensorDictBase) -> float:
-        """Takes the step on ``batch`` and returns the loss before it."""
+    def __call__(self, batch: TensorDictBase) -> float | list[float]:
+        """Takes the step on ``batch`` and returns the loss before it (each member's, with ``num_members``)."""
         self.optimizer.zero_grad(set_to_none=True)
         loss = self._compiled_or_eager(batch)
         if self.max_grad_norm is not None:
             for group in self.optimizer.param_groups:
-                torch.nn.utils.clip_grad_norm_(group["params"], self.max_grad_norm)
+                self._clip(group["params"])
         self.optimizer.step()
-        return loss.item()
+        return loss.tolist()
+
+    def _clip(self, parameters: list[torch.Tensor]) -> None:
+        if self.num_members is None:
+            torch.nn.utils.clip_grad_norm_(parameters, self.max_grad_norm)
+        else:
+            clip_grad_norm_per_member_(parameters, self.max_grad_norm, self.num_members)
 
     def _eager_loss_and_backward(self, batch: TensorDictBase) -> torch.Tensor:
         loss = self.loss(batch)
-        loss.backward()
+        loss.sum().backward()
         return loss.detach()
 
     def _compiled_or_eager(self, batch: TensorDictBase) -> torch.Tensor:

@@ -8,7 +8,7 @@ from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
 from torchrl.envs import MultiStepTransform
 
-__all__ = ["SUCCESSOR_KEY", "make_replay_buffer", "ReplayState", "ReplayTransitions", "one_step_transitions"]
+__all__ = ["SUCCESSOR_KEY", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
@@ -102,13 +102,18 @@ class ReplayTransitions:
 
     KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
 
-    def __init__(self, n_steps: int, gamma: float, *, intrinsic_coef: float | None = None) -> None:
+    def __init__(
+        self, n_steps: int, gamma: float, *, intrinsic_coef: float | None = None, num_members: int | None = None
+    ) -> None:
         self.multistep = MultiStepTransform(n_steps, gamma, done_keys=["done", "truncated"]) if n_steps > 1 else None
         self.intrinsic_coef = intrinsic_coef
+        self.num_members = num_members
 
     def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
         """Transitions of ``frames`` (``(time,)`` or ``(envs, time)``) as a flat batch; ``None`` while held back.
 
+        With ``num_members``, ``frames`` are a population's ``(envs, M, time)`` and the
+        batch is ``(envs * time, M)``, each member's transitions in its own column.
         With ``intrinsic_coef``, the stored reward is ``reward + intrinsic_coef * ("next", "intrinsic_reward")``.
         """
         transitions = one_step_transitions(frames)
@@ -121,7 +126,7 @@ class ReplayTransitions:
             if frames is None:
                 return None
             frames = frames.exclude("gamma", "nonterminal", ("next", "original_reward"))
-        return frames.reshape(-1)
+        return flatten_frames(frames, self.num_members)
 
     def state_dict(self) -> dict:
         """The frames held back for the next batch's n-step windows (none with ``n_steps=1``)."""
@@ -133,6 +138,13 @@ class ReplayTransitions:
     def load_state_dict(self, state: dict) -> None:
         if state["held_back"] is not None:
             self.multistep._buffer = TensorDict(state["held_back"], batch_size=state["batch_size"])
+
+
+def flatten_frames(frames: TensorDictBase, num_members: int | None = None) -> TensorDictBase:
+    """Collected ``(time,)`` or ``(envs, time)`` frames as ``(frames,)``; a population's ``(envs, M, time)`` as ``(frames, M)``."""
+    if num_members is None:
+        return frames.reshape(-1)
+    return frames.transpose(-2, -1).contiguous().reshape(-1, num_members)
 
 
 def one_step_transitions(frames: TensorDictBase) -> TensorDictBase:

@@ -15,6 +15,7 @@ import re
 import signal
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol
@@ -36,6 +37,7 @@ from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS
 __all__ = [
     "Agent",
     "Progress",
+    "budget_spent",
     "Run",
     "RunFinished",
     "StopOnInterrupt",
@@ -48,6 +50,15 @@ __all__ = [
     "record_updates",
     "make_run_env",
     "keep_in_checkpoints",
+    "note_evaluation",
+    "evaluate_members",
+    "close_run",
+    "confirmed_now",
+    "crossed",
+    "log_evaluation",
+    "read_checkpoint",
+    "refuse_to_overwrite",
+    "save_atomically",
     "Resumable",
     "CHECKPOINT_FORMAT",
 ]
@@ -126,10 +137,14 @@ class Run:
 
     def budget_spent(self) -> bool:
         """Whether the training budget is used up (or the task solved, with ``train.stop_when_solved``)."""
-        train, progress = self.cfg.train, self.progress
-        if train.stop_when_solved and progress.solved_at_frames is not None:
-            return True
-        return progress.episodes >= train.episodes or (train.max_frames is not None and progress.frames >= train.max_frames)
+        return budget_spent(self.cfg.train, self.progress)
+
+
+def budget_spent(train: DictConfig, progress: Progress) -> bool:
+    """Whether ``progress`` has used up the budget of ``train`` (or solved the task, with ``train.stop_when_solved``)."""
+    if train.stop_when_solved and progress.solved_at_frames is not None:
+        return True
+    return progress.episodes >= train.episodes or (train.max_frames is not None and progress.frames >= train.max_frames)
 
 
 def open_run(cfg: DictConfig, run_dir: Path, agent: Agent) -> Run:
@@ -146,8 +161,8 @@ def open_run(cfg: DictConfig, run_dir: Path, agent: Agent) -> Run:
     env_id = resolve_env_id(cfg.env.name)
     eval_env = make_run_env(cfg, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000)
     if not cfg.resume:
-        _refuse_to_overwrite(run_dir)
-    checkpoint = _read_checkpoint(cfg, run_dir) if cfg.resume else None
+        refuse_to_overwrite(run_dir)
+    checkpoint = read_checkpoint(cfg, run_dir) if cfg.resume else None
     progress = _restore(checkpoint, agent) if checkpoint is not None else Progress()
     logger = RunLogger(run_dir, cfg, resume_frames=progress.frames if cfg.resume else None)
     bar = _progress_bar(cfg, progress)
@@ -166,9 +181,13 @@ def open_run(cfg: DictConfig, run_dir: Path, agent: Agent) -> Run:
 
 
 def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int) -> EnvBase:
-    """The configured env (``cfg.env``, on ``cfg.device``): training, evaluation and final envs are the same task."""
+    """The configured env (``cfg.env``, on ``cfg.device``): training, evaluation and final envs are the same task.
+
+    With ``population=M > 1`` the batch is ``(num_envs, M)``: ``num_envs`` copies per member.
+    """
     options = {"size": cfg.env.size} if cfg.env.size is not None else {}
-    return make_env(cfg.env.name, num_envs=num_envs, seed=seed, device=cfg.device, **options)
+    batch = num_envs if cfg.population == 1 else (num_envs, cfg.population)
+    return make_env(cfg.env.name, num_envs=batch, seed=seed, device=cfg.device, **options)
 
 
 def _summary_of_this_checkpoint(run_dir: Path, progress: Progress) -> dict | None:
@@ -192,7 +211,8 @@ def _progress_bar(cfg: DictConfig, progress: Progress) -> tqdm:
     )
 
 
-def _refuse_to_overwrite(run_dir: Path) -> None:
+def refuse_to_overwrite(run_dir: Path) -> None:
+    """One line, unless ``run_dir`` holds no checkpoint: a new run never overwrites one."""
     if (run_dir / CHECKPOINT).exists():
         raise ConfigError(
             f"{run_dir} already holds a run. Pass resume=true to continue it, "
@@ -200,7 +220,7 @@ def _refuse_to_overwrite(run_dir: Path) -> None:
         )
 
 
-def _read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
+def read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
     """The checkpoint to resume from, refused with one line if it is missing, unreadable, or of another version or config."""
     checkpoint_path = run_dir / CHECKPOINT
     if not checkpoint_path.exists():
@@ -282,9 +302,9 @@ def record_updates(run: Run, rows: list[dict]) -> None:
 def evaluate_and_checkpoint_if_due(run: Run, new_frames: int) -> None:
     """The periodic greedy evaluation (keeping the best policy) and checkpoint, when the last ``new_frames`` crossed their period."""
     frames, cfg = run.progress.frames, run.cfg
-    if _crossed(frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
+    if crossed(frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
         _periodic_evaluation(run)
-    if _crossed(frames, new_frames, cfg.train.checkpoint_every_frames):
+    if crossed(frames, new_frames, cfg.train.checkpoint_every_frames):
         save_checkpoint(run)
 
 
@@ -325,9 +345,18 @@ def _visited_states(batch: TensorDictBase, progress: Progress) -> tuple[torch.Te
 
 def _periodic_evaluation(run: Run) -> None:
     """Greedy evaluation; keeps the best policy so far and notes the first solved evaluation."""
-    progress = run.progress
     result = evaluate(run.agent.actor, run.eval_env, run.env_id)
-    _log_evaluation(result, run)
+    note_evaluation(run, result, confirm=lambda: _final_evaluation(run))
+
+
+def note_evaluation(run: Run, result: dict, *, confirm: Callable[[], dict]) -> None:
+    """Logs a periodic evaluation's ``result``, keeps the best policy so far and notes the first solved evaluation.
+
+    A result at or above the solved threshold is confirmed by ``confirm()``, the
+    greedy returns of ``eval.final_episodes`` episodes (see :func:`_confirm_solved`).
+    """
+    progress = run.progress
+    log_evaluation(result, run)
     mean = result["eval_return_mean"]
     if progress.best_eval_return is None or mean > progress.best_eval_return:
         progress.best_eval_return, progress.best_eval_frames = mean, progress.frames
@@ -335,11 +364,11 @@ def _periodic_evaluation(run: Run) -> None:
         save_atomically(best, run.run_dir / BEST_POLICY)
     threshold = run.solved_threshold
     if threshold is not None and mean >= threshold and progress.solved_at_frames is None:
-        _confirm_solved(run, threshold)
+        _confirm_solved(run, threshold, confirm)
 
 
-def _confirm_solved(run: Run, threshold: float) -> None:
-    """Marks the task solved if an evaluation of ``eval.final_episodes`` episodes confirms the periodic one.
+def _confirm_solved(run: Run, threshold: float, confirm: Callable[[], dict]) -> None:
+    """Marks the task solved if an evaluation of ``eval.final_episodes`` episodes (``confirm()``) confirms the periodic one.
 
     A few periodic episodes at or above the threshold often come from a policy
     that averages below it; training goes on when the confirmation fails. With
@@ -347,7 +376,7 @@ def _confirm_solved(run: Run, threshold: float) -> None:
     """
     progress = run.progress
     if run.cfg.eval.final_episodes:
-        result = _final_evaluation(run)
+        result = confirm()
         mean = result["eval_return_mean"]
         log.info("Confirming evaluation at %d frames (%d episodes): return %.1f", progress.frames, run.cfg.eval.final_episodes, mean)
         if mean < threshold:
@@ -370,8 +399,22 @@ def evaluate(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> dict:
     All copies step together until each has finished one episode (one rollout,
     whatever the number of episodes).
     """
+    return _episode_results(_greedy_rollout(actor, env), env_id)
+
+
+def evaluate_members(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> list[dict]:
+    """:func:`evaluate` of each member of a population ``actor`` in a ``(episodes, M)`` env, in one rollout."""
+    rollout = _greedy_rollout(actor, env)
+    return [_episode_results(rollout[:, member], env_id) for member in range(rollout.shape[1])]
+
+
+def _greedy_rollout(actor: TensorDictModuleBase, env: EnvBase) -> TensorDictBase:
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        rollout = env.rollout(max_steps=100_000, policy=actor, break_when_any_done=False, break_when_all_done=True)
+        return env.rollout(max_steps=100_000, policy=actor, break_when_any_done=False, break_when_all_done=True)
+
+
+def _episode_results(rollout: TensorDictBase, env_id: str) -> dict:
+    """Mean and spread of the returns, and the success rate, of the first episode of each env of ``rollout`` (``(envs, time)``)."""
     episodes = first_episodes(rollout)
     returns = [episode.episode_return for episode in episodes]
     return {
@@ -386,7 +429,8 @@ def play_episode(env: EnvBase, policy: TensorDictModuleBase) -> TensorDictBase:
     return env.rollout(max_steps=100_000, policy=policy, break_when_any_done=True)
 
 
-def _log_evaluation(result: dict, run: Run) -> None:
+def log_evaluation(result: dict, run: Run) -> None:
+    """A row of the evaluations table, and the log line."""
     progress = run.progress
     run.logger.log("evaluations", {"frames": progress.frames, "episode": progress.episodes, **result})
     log.info("eval at %d frames: return %.1f", progress.frames, result["eval_return_mean"])
@@ -466,7 +510,7 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
     episodes = run.cfg.eval.final_episodes
     final = None
     try:
-        if run.confirmation is not None and run.confirmation[0] == run.progress.frames:
+        if confirmed_now(run):
             final = run.confirmation[1]  # the same policy, evaluated just now
         elif not interrupt.requested and episodes:
             log.info("Final greedy evaluation: %d episodes side by side (Ctrl-C stops it; the checkpoint is saved).", episodes)
@@ -479,8 +523,18 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
             f"Interrupted at {run.progress.frames} frames; checkpoint saved in {run.run_dir}. "
             f"Continue with: python train.py <same overrides> resume=true hydra.run.dir={run.run_dir}"
         )
+    return close_run(run, final)
+
+
+def confirmed_now(run: Run) -> bool:
+    """Whether the evaluation that confirmed "solved" was of the policy as it is now (no frame since)."""
+    return run.confirmation is not None and run.confirmation[0] == run.progress.frames
+
+
+def close_run(run: Run, final: dict | None) -> dict:
+    """Logs the ``final`` evaluation (if any), closes the logs and writes the summary, which it returns."""
     if final is not None:
-        _log_evaluation(final, run)
+        log_evaluation(final, run)
     run.logger.close()
     return write_summary(run, final)
 
@@ -538,6 +592,6 @@ def summary_line(summary: dict, run_dir: Path | str) -> str:
     )
 
 
-def _crossed(frames: int, new_frames: int, every: int) -> bool:
+def crossed(frames: int, new_frames: int, every: int) -> bool:
     """Whether the last ``new_frames`` frames crossed a multiple of ``every``."""
     return frames // every > (frames - new_frames) // every

@@ -9,6 +9,7 @@ from omegaconf import DictConfig
 
 from torchrl_mbe.app.config import check_config, register_configs
 from torchrl_mbe.app.dqn import train_dqn
+from torchrl_mbe.app.population import train_dqn_population
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.run import RunFinished
 
@@ -22,6 +23,9 @@ LOOPS = {"dqn": train_dqn, "reinforce": train_reinforce}
 
 def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     """Trains the configured agent and returns the run's summary (``summary.json``).
+
+    With ``population=M > 1`` it trains M agents together (:mod:`torchrl_mbe.app.population`)
+    and returns the population's summary, each member's under ``"members"``.
 
     Every config value is checked before anything is built
     (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one).
@@ -42,7 +46,8 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     torch.set_flush_denormal(True)
     torch.manual_seed(cfg.seed)
     try:
-        return LOOPS[cfg.algo.name](cfg, run_dir)
+        loop = train_dqn_population if cfg.population > 1 else LOOPS[cfg.algo.name]
+        return loop(cfg, run_dir)
     except RunFinished as finished:
         log.info("%s already finished its budget (raise train.episodes or train.max_frames to continue); nothing changed.", run_dir)
         return finished.summary

@@ -1,6 +1,7 @@
 """``make_env``: discrete-action tasks (gymnasium's, or the registry's torch-only DeepSea) wrapped the way a DQN needs them."""
 from __future__ import annotations
 
+import math
 from functools import partial
 from typing import Any, Literal
 
@@ -15,7 +16,7 @@ __all__ = ["make_env"]
 def make_env(
     name: str,
     *,
-    num_envs: int = 1,
+    num_envs: int | tuple[int, ...] = 1,
     backend: Literal["gym", "torch"] | None = None,
     seed: int | None = None,
     device: torch.device | str = "cpu",
@@ -55,7 +56,8 @@ def make_env(
         name (str): a short name of :data:`~torchrl_mbe.envs.registry.TASKS` or a gymnasium id.
 
     Keyword Args:
-        num_envs (int): number of environment copies. Defaults to 1.
+        num_envs (int or tuple of int): number of environment copies, or the batch
+            shape of a torch backend's copies (a population's ``(num_envs, M)``). Defaults to 1.
         backend (str, optional): ``"gym"`` or ``"torch"``; see above.
         seed (int, optional): seeds the environment (copies get distinct seeds).
         device (torch.device): where the env's tensors live. Defaults to CPU.
@@ -76,14 +78,17 @@ def make_env(
         ...
         ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1), deepsea (DeepSea).
     """
-    if int(num_envs) < 1:
-        raise ValueError(f"num_envs must be a positive integer, got {num_envs}.")
+    batch_shape = (num_envs,) if isinstance(num_envs, int) else tuple(num_envs)
+    if not batch_shape or min(batch_shape) < 1:
+        raise ValueError(f"num_envs must be a positive integer (or a shape of them), got {num_envs}.")
     env_id = resolve_env_id(name)
     task = task_of(env_id)
     torch_env = task.torch_env if task is not None else None
     gymnasium = task is None or task.gymnasium
     if backend is None:
-        backend = "torch" if torch_env is not None and (num_envs > 1 or not gymnasium) else "gym"
+        backend = "torch" if torch_env is not None and (math.prod(batch_shape) > 1 or not gymnasium) else "gym"
+    if backend == "gym" and len(batch_shape) > 1:
+        raise ValueError(f"num_envs={num_envs}: only a torch backend takes a batch shape; {env_id} runs on gymnasium here.")
     if backend == "torch":
         if torch_env is None:
             with_torch = sorted(t.env_id for t in TASKS.values() if t.torch_env is not None)

@@ -13,6 +13,7 @@ from torchrl.modules import MLP
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
 from torchrl_mbe.modules.networks import init_linear_layers
 from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.population import make_members_mlp
 
 __all__ = ["DynamicsModel", "action_indices", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
 
@@ -65,6 +66,9 @@ class DynamicsModel(TensorDictModuleBase):
         observation_key (NestedKey): input observation. Defaults to ``"observation"``.
         action_key (NestedKey): input action. Defaults to ``"action"``.
         out_key (NestedKey): output. Defaults to ``"predicted_observation"``.
+        num_members (int, optional): a population of ``M`` independent models
+            (one TorchRL ``MultiAgentMLP``, statistics of shape ``(M, F)``) reading
+            ``[*B, M, F]`` observations; ``None`` (the default) is one model.
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -91,6 +95,7 @@ class DynamicsModel(TensorDictModuleBase):
         observation_key: NestedKey = "observation",
         action_key: NestedKey = "action",
         out_key: NestedKey = "predicted_observation",
+        num_members: int | None = None,
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
@@ -103,18 +108,21 @@ class DynamicsModel(TensorDictModuleBase):
         self.out_keys = [out_key]
         self.action_spec = discrete_action_spec(action_spec, action_key)
         self.observation_size = observation_size
-        self.net = init_linear_layers(
-            MLP(
-                in_features=observation_size + num_discrete_actions(self.action_spec),
-                out_features=observation_size,
-                num_cells=list(num_cells),
-                activation_class=activation_class,
-                device=device,
-            )
-        )
-        self.observation_norm = Standardize(observation_size, device=device)
-        self.delta_norm = Standardize(observation_size, device=device)
+        self.num_members = num_members
+        self.net = self._make_net(observation_size + num_discrete_actions(self.action_spec), list(num_cells), activation_class, device)
+        statistics_shape = observation_size if num_members is None else (num_members, observation_size)
+        self.observation_norm = Standardize(statistics_shape, device=device)
+        self.delta_norm = Standardize(statistics_shape, device=device)
         self.normalization_fitted = False
+
+    def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device) -> nn.Module:
+        """The MLP (Glorot-uniform weights, zero biases), or the members' ``MultiAgentMLP``."""
+        if self.num_members is not None:
+            return make_members_mlp(
+                in_features, self.observation_size, num_cells, self.num_members, activation_class=activation_class, device=device
+            )
+        mlp = MLP(in_features=in_features, out_features=self.observation_size, num_cells=num_cells, activation_class=activation_class, device=device)
+        return init_linear_layers(mlp)
 
     @property
     def delta_scale(self) -> torch.Tensor:
@@ -144,14 +152,15 @@ class DynamicsModel(TensorDictModuleBase):
         """Refits the input and delta statistics from transitions.
 
         Args:
-            data (TensorDictBase or ReplayBuffer): transitions holding the
-                observation and the next observation; a replay buffer is read whole.
+            data (TensorDictBase or replay buffer): transitions holding the
+                observation and the next observation; a replay buffer (TorchRL's, or
+                a :class:`~torchrl_mbe.modules.population.PopulationReplayBuffer`) is read whole.
 
         Keyword Args:
             next_observation_key (NestedKey): where the next observation is.
             min_scale (float): dimensions whose standard deviation is at most this are left unscaled.
         """
-        if isinstance(data, ReplayBuffer):
+        if not isinstance(data, TensorDictBase):
             data = data[: len(data)]
         observation = data.get(self.in_keys[0])
         self.observation_norm.fit(observation, min_scale)

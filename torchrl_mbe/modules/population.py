@@ -44,7 +44,9 @@ __all__ = [
     "PopulationDQNLoss",
     "PopulationReplayBuffer",
     "clip_grad_norm_per_member_",
+    "make_members_mlp",
     "make_population_q_actor",
+    "member_state_dict",
 ]
 
 
@@ -54,18 +56,15 @@ def make_population_q_actor(
     num_cells: Sequence[int],
     num_members: int,
     *,
+    input_norm: nn.Module | None = None,
     device: torch.device | str = "cpu",
 ) -> QValueActor:
     """A ``QValueActor`` over ``num_members`` independent Q-networks: ``[*B, M, F]`` observations to ``[*B, M, A]`` values.
 
-    The networks are one TorchRL ``MultiAgentMLP(share_params=False, centralized=False)``
-    (ReLU hidden layers ``num_cells``), whose parameters are stacked along a leading
-    member dimension (``network.params``, e.g. ``("0", "weight")`` of shape
-    ``[M, num_cells[0], F]``). Each member's slice is initialized as
-    :func:`~torchrl_mbe.modules.make_per_action_mlp` initializes the single Q-network
-    (Glorot-uniform weights, the paper's Keras initialization, and zero biases), layer by
-    layer and member by member from torch's global generator; a population of one then
-    starts from the weights a single network built from the same seed starts from.
+    The networks are :func:`make_members_mlp`'s (ReLU hidden layers ``num_cells``),
+    each member initialized as :func:`~torchrl_mbe.modules.make_per_action_mlp`
+    initializes the single Q-network; a population of one then starts from the
+    weights a single network built from the same seed starts from.
 
     Args:
         observation_size (int): features per member.
@@ -74,6 +73,8 @@ def make_population_q_actor(
         num_members (int): the population size ``M``.
 
     Keyword Args:
+        input_norm (nn.Module, optional): applied to the observations first (a
+            :class:`~torchrl_mbe.modules.Standardize` of shape ``(M, F)``: one set of statistics per member).
         device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
 
     Examples:
@@ -88,14 +89,46 @@ def make_population_q_actor(
         >>> actor.module[0].params["0", "weight"].shape  # [M, hidden, features]
         torch.Size([4, 16, 2])
     """
+    network = make_members_mlp(observation_size, action_spec.space.n, num_cells, num_members, device=device)
+    if input_norm is not None:
+        network = nn.Sequential(input_norm, network)
+    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+
+
+def make_members_mlp(
+    in_features: int,
+    out_features: int,
+    num_cells: Sequence[int],
+    num_members: int,
+    *,
+    activation_class: type[nn.Module] = nn.ReLU,
+    device: torch.device | str | None = "cpu",
+) -> MultiAgentMLP:
+    """``num_members`` independent MLPs as one TorchRL ``MultiAgentMLP``: ``[*B, M, in_features]`` to ``[*B, M, out_features]``.
+
+    ``MultiAgentMLP(share_params=False, centralized=False)`` stacks the members'
+    parameters along a leading member dimension (``network.params``, e.g.
+    ``("0", "weight")`` of shape ``[M, num_cells[0], in_features]``). Each member's
+    slice is initialized as :func:`~torchrl_mbe.modules.init_linear_layers`
+    initializes a single MLP (Glorot-uniform weights, the paper's Keras
+    initialization, and zero biases), layer by layer and member by member from
+    torch's global generator.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules.population import make_members_mlp
+        >>> network = make_members_mlp(3, 2, [8], num_members=4)
+        >>> network(torch.zeros(5, 4, 3)).shape, network.params["0", "weight"].shape
+        (torch.Size([5, 4, 2]), torch.Size([4, 8, 3]))
+    """
     network = MultiAgentMLP(
-        n_agent_inputs=observation_size,
-        n_agent_outputs=action_spec.space.n,
+        n_agent_inputs=in_features,
+        n_agent_outputs=out_features,
         n_agents=num_members,
         centralized=False,
         share_params=False,
         num_cells=list(num_cells),
-        activation_class=nn.ReLU,
+        activation_class=activation_class,
         device=device,
     )
     # get_stateful_net puts the stacked parameters themselves into a copy of one member's MLP
@@ -106,7 +139,7 @@ def make_population_q_actor(
             _each_member(nn.init.xavier_uniform_),
             _each_member(nn.init.zeros_),
         )
-    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+    return network
 
 
 def _each_member(init: Callable[[torch.Tensor], torch.Tensor]) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -140,7 +173,7 @@ class PopulationDQNLoss(DQNLoss):
 
     Returns (from ``forward``):
         a TensorDict with ``"loss"`` (the scalar to back-propagate) and
-        ``"member_loss"`` (``[M]``, detached: each member's own loss, to log per member).
+        ``"member_loss"`` (``[M]``: each member's own loss, whose sum is ``"loss"``).
         ``"td_error"`` is written into the input batch as ``DQNLoss`` does, ``[*B, M, 1]``.
 
     Examples:
@@ -173,7 +206,7 @@ class PopulationDQNLoss(DQNLoss):
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         per_sample = super().forward(tensordict)["loss"]  # [*B, M]
         member_loss = per_sample.reshape(-1, per_sample.shape[-1]).mean(0)
-        return TensorDict(loss=member_loss.sum(), member_loss=member_loss.detach())
+        return TensorDict(loss=member_loss.sum(), member_loss=member_loss)
 
 
 def clip_grad_norm_per_member_(
@@ -274,6 +307,12 @@ class PopulationReplayBuffer:
     def __len__(self) -> int:
         return self._size
 
+    def __getitem__(self, rows: slice) -> TensorDictBase:
+        """Stored rows of every member (storage order, ``[rows, M]``): ``buffer[: len(buffer)]`` reads them all, as for TorchRL's buffers."""
+        if self._storage is None:
+            raise RuntimeError("PopulationReplayBuffer is empty.")
+        return self._storage[: self._size][rows]
+
     def extend(self, data: TensorDictBase) -> torch.Tensor:
         """Writes ``data`` (batch ``[*N, M]``) after the newest rows, overwriting the oldest; returns the rows written."""
         if data.batch_size[-1:] != (self.num_members,):
@@ -317,3 +356,32 @@ class PopulationReplayBuffer:
         storage = state["storage"]
         self._storage = None if storage is None else TensorDict(storage, batch_size=[self.capacity, self.num_members], device=self.device)
         self._cursor, self._size = state["cursor"], state["size"]
+
+
+def member_state_dict(population_state: dict[str, torch.Tensor], member: int) -> dict[str, torch.Tensor]:
+    """Member ``member``'s slice of a population module's ``state_dict``, keyed as the single module's.
+
+    A population module is the single module with each ``MultiAgentMLP`` in place of
+    its ``MLP`` (parameters under ``params``, stacked ``[M, ...]``) and statistics of
+    shape ``[M, ...]`` (:class:`~torchrl_mbe.modules.Standardize` ``(M, F)``): a
+    member's entry is the ``[member]`` slice of every tensor, its key without
+    ``params.``. The result loads into the single module (``make_q_actor``'s
+    ``QValueActor`` for :func:`make_population_q_actor`'s), so a member's policy is
+    saved and read as a single run's.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import OneHot
+        >>> from torchrl.modules import QValueActor
+        >>> from torchrl_mbe.modules import make_per_action_mlp
+        >>> from torchrl_mbe.modules.population import make_population_q_actor, member_state_dict
+        >>> population = make_population_q_actor(2, OneHot(3), [16], num_members=4)
+        >>> single = QValueActor(make_per_action_mlp(2, OneHot(3), [16]), spec=OneHot(3), in_keys=["observation"])
+        >>> _ = single.load_state_dict(member_state_dict(population.state_dict(), 2))
+        >>> states = torch.randn(5, 4, 2)
+        >>> values = population(TensorDict(observation=states, batch_size=[5, 4]))["action_value"][:, 2]
+        >>> torch.allclose(single(TensorDict(observation=states[:, 2], batch_size=[5]))["action_value"], values)
+        True
+    """
+    return {key.replace("params.", ""): value[member].clone() for key, value in population_state.items()}

@@ -24,7 +24,9 @@ class DynamicsLoss(LossModule):
     does) the error of each dimension is divided by it, so that every dimension
     weighs the same whatever its units (mbrl-lib trains in normalized units too);
     ``loss_dynamics`` is that normalized MSE and ``mse_dynamics`` (detached) the
-    raw one, in observation units.
+    raw one, in observation units. For a population model (``num_members`` M, batches
+    ``[*B, M]``) both are ``[M]``, one mean per member: their sum is what trains,
+    so each member's gradient is its own single model's.
 
     A module with a ``fit_normalization`` method whose ``normalization_fitted`` is
     ``False`` (a fresh :class:`~torchrl_mbe.DynamicsModel`) has its statistics fitted
@@ -107,10 +109,18 @@ class DynamicsLoss(LossModule):
         error = prediction - next_observation
         scale = getattr(self.dynamics, "delta_scale", None) if self.normalize else None
         normalized_error = error if scale is None else error / scale
+        num_members = getattr(self.dynamics, "num_members", None)
         return TensorDict(
             {
-                "loss_dynamics": normalized_error.square().mean(),
-                "mse_dynamics": error.detach().square().mean(),
+                "loss_dynamics": _mean(normalized_error.square(), num_members),
+                "mse_dynamics": _mean(error.detach().square(), num_members),
             },
             batch_size=[],
         )
+
+
+def _mean(squared_errors: torch.Tensor, num_members: int | None) -> torch.Tensor:
+    """The mean, or for a population's ``[*B, M, F]`` errors one mean per member, ``[M]`` (summed, each member's gradient is its own)."""
+    if num_members is None:
+        return squared_errors.mean()
+    return squared_errors.reshape(-1, num_members, squared_errors.shape[-1]).mean((0, 2))

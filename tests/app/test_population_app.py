@@ -1,0 +1,122 @@
+"""``population=M``: M agents in one process, each member's run directory a single run's, members that never mix."""
+from __future__ import annotations
+
+import csv
+import json
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.collectors import Collector
+
+from torchrl_mbe.app import ConfigError, check_config, train
+from torchrl_mbe.app.config import config_id
+from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
+from torchrl_mbe.app.replay import ReplayTransitions
+from torchrl_mbe.app.run import load_safely, make_run_env
+from torchrl_mbe.modules import Standardize
+from torchrl_mbe.modules.population import PopulationReplayBuffer
+from torchrl_mbe.report.runs import load_runs
+from torchrl_mbe.rundir import BEST_POLICY, SUMMARY, TABLES, table_file
+
+SMALL = ("algo.num_cells=[16,16]", "dynamics.num_cells=[16]", "algo.batch_size=32", "dynamics.batch_size=32")
+
+
+def test_a_population_writes_one_single_run_directory_per_member(tmp_path, compose_config):
+    overrides = ("population=3", "seed=4", "env.num_envs=2", "eval.episodes=2", "eval.every_frames=128", *SMALL)
+    summary = train(compose_config(*overrides), tmp_path / "population")
+    assert [member["seed"] for member in summary["members"]] == [4, 5, 6] and summary["population"] == 3
+    single = compose_config(*overrides[1:], "seed=5")
+    for seed in (4, 5, 6):
+        member = tmp_path / "population" / f"seed{seed}"
+        written = json.loads((member / SUMMARY).read_text())
+        assert written["seed"] == seed and written["config_id"] == config_id(single)  # grouped with single runs of it
+        assert written["frames"] == 304 and written["q_updates"] > 0 and written["final_eval_return"] is not None
+        for table, columns in TABLES.items():
+            with (member / table_file(table)).open() as handle:
+                assert tuple(csv.DictReader(handle).fieldnames) == columns
+        with (member / table_file("episodes")).open() as handle:
+            assert len(list(csv.DictReader(handle))) == written["episodes"]
+    runs = load_runs(tmp_path)
+    assert sorted(run.seed for run in runs) == [4, 5, 6] and {run.method for run in runs} == {"dqn+gaussian"}
+
+
+def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp_path, compose_config):
+    cfg = compose_config("population=2", "env.num_envs=2", "eval.episodes=2", "eval.every_frames=128", *SMALL)
+    train(cfg, tmp_path)
+    env = make_run_env(cfg, num_envs=1, seed=0)
+    observation_size = env.observation_spec_unbatched["observation"].shape[-1]
+    policies = []
+    for seed in (0, 1):
+        actor = make_q_actor(
+            observation_size, env.action_spec_unbatched, cfg.algo.num_cells, torch.device("cpu"), input_norm=Standardize(observation_size)
+        )
+        actor.load_state_dict(load_safely(tmp_path / f"seed{seed}" / BEST_POLICY)["actor"])  # strict: a single actor's keys
+        policies.append(actor)
+    states = TensorDict(observation=torch.randn(64, observation_size), batch_size=[64])
+    values = [policy(states.clone())["action_value"] for policy in policies]
+    assert not torch.allclose(values[0], values[1])  # each member's own network
+
+
+@pytest.mark.parametrize("exploration", ["gaussian", "egreedy"])
+def test_changing_one_members_data_and_parameters_leaves_every_other_members_updates_unchanged(exploration, compose_config):
+    clipping = ("algo.max_grad_norm=0.01", "dynamics.max_grad_norm=0.01")  # every member's gradient clipped
+    cfg = compose_config("population=3", f"exploration={exploration}", "env.num_envs=4", *clipping, *SMALL)
+    trained = [_learn_once(cfg, perturb_member=None), _learn_once(cfg, perturb_member=1)]
+    for (name, untouched), (_, perturbed) in zip(*trained):
+        assert not torch.equal(untouched[1], perturbed[1]), name  # the perturbed member's changed
+        for member in (0, 2):
+            assert torch.equal(untouched[member], perturbed[member]), f"{name}, member {member}"
+
+
+def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Tensor]]:
+    """Every parameter and statistic (stacked ``[M, ...]``) after one round of updates, with one member's data and weights changed."""
+    torch.manual_seed(0)
+    env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=0)
+    agent = build_dqn_agent(cfg, env)
+    batch = next(iter(Collector(env, agent.explorer.policy, frames_per_batch=128 * 3, total_frames=-1)))
+    if perturb_member is not None:
+        batch["observation"][:, perturb_member] += 0.5
+        batch["next", "observation"][:, perturb_member] -= 0.5
+        with torch.no_grad():
+            for parameter in agent.explorer.policy.parameters():
+                parameter[perturb_member] += 0.1
+    buffer = PopulationReplayBuffer(1000, 3)
+    buffer.extend(ReplayTransitions(1, 0.99, num_members=3)(batch))
+    torch.manual_seed(1)  # the same sampling draws in both
+    agent.learn(batch, buffer, frames=max(cfg.algo.learning_starts, cfg.dynamics.learning_starts) + 128)
+    assert agent.q_updates > 0 and agent.summary_fields().get("dynamics_updates", 1) > 0
+    state = agent.explorer.policy.state_dict()
+    target = agent.q_loss.target_value_network_params.flatten_keys(".")
+    stacked = [*state.items(), *target.items()]  # the windows, (num_envs, M, ...), are filled while collecting: equal
+    return [(name, value) for name, value in stacked if isinstance(value, torch.Tensor) and value.ndim and value.shape[0] == 3]
+
+
+@pytest.mark.parametrize(
+    ("overrides", "named"),
+    [
+        (("population=0",), "population=0: expected a positive integer"),
+        (("population=2", "exploration=rnd"), "exploration=rnd trains one agent per process; use population=1"),
+        (("population=2", "exploration=noisy"), "exploration=noisy trains one agent per process; use population=1"),
+        (("population=2", "env=lunarlander"), "LunarLander-v3 has no torch-batched implementation"),
+        (("population=2", "buffer=prioritized"), "use buffer=uniform or population=1"),
+        (("population=2", "algo=reinforce"), "only algo=dqn trains populations"),
+    ],
+)
+def test_a_population_it_cannot_train_is_refused_in_one_line_naming_the_setting(overrides, named, compose_config):
+    with pytest.raises(ConfigError) as refused:
+        check_config(compose_config(*overrides))
+    assert named in str(refused.value) and "\n" not in str(refused.value)
+
+
+def test_a_population_resumes_where_it_stopped(tmp_path, compose_config):
+    overrides = ("population=2", "env.num_envs=2", "eval.episodes=0", "train.checkpoint_every_frames=128", *SMALL)
+    whole = train(compose_config(*overrides), tmp_path / "whole")
+    train(compose_config(*overrides, "train.max_frames=160"), tmp_path / "resumed")
+    resumed = train(compose_config(*overrides, "resume=true"), tmp_path / "resumed")
+    for before, after in zip(whole["members"], resumed["members"]):
+        assert after["frames"] == before["frames"] and after["episodes"] == before["episodes"]
+    for seed in (0, 1):
+        episodes = [(tmp_path / run / f"seed{seed}" / table_file("episodes")).read_text() for run in ("whole", "resumed")]
+        columns = [[line.split(",")[:5] for line in text.splitlines()] for text in episodes]
+        assert columns[0] == columns[1]  # the same episodes, wall times aside
