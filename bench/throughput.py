@@ -5,6 +5,7 @@
     python bench/throughput.py --out my.json   # JSON elsewhere than bench/results/
     python bench/throughput.py --threads 2     # torch intra-op threads (default 1, as the app)
     python bench/throughput.py --only training breakdown   # some sections only
+    python bench/throughput.py --only population           # populations (population=N) against single runs
 
 Every figure is the median over ``repeats`` timed blocks (``time.perf_counter``)
 after untimed warm-up calls; variants that are compared are timed in
@@ -95,10 +96,18 @@ class Budget:
     train_frames: int
     train_repeats: int
     reference_frames: int
+    population_frames: int
+    population_sizes: tuple[int, ...]
 
 
-FULL = Budget(warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3, reference_frames=20_000)
-QUICK = Budget(warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1, reference_frames=3000)
+FULL = Budget(
+    warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3,
+    reference_frames=20_000, population_frames=4000, population_sizes=(1, 5, 20),
+)
+QUICK = Budget(
+    warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1,
+    reference_frames=3000, population_frames=2000, population_sizes=(1, 5),
+)
 
 
 @dataclass
@@ -259,13 +268,14 @@ def paper_config(*overrides: str) -> DictConfig:
 
 
 def training_frames_per_s(cfg: DictConfig) -> float:
-    """Frames/s of one ``torchrl_mbe.app.train(cfg)`` run in a temporary directory.
+    """Frames/s of one ``torchrl_mbe.app.train(cfg)`` run in a temporary directory (a population's: each member's).
 
     The summary's figure: frames over the loop's wall time, without building the
     env and agent before the loop or saving the checkpoint after it.
     """
     with tempfile.TemporaryDirectory() as run_dir:
-        return train(cfg, run_dir)["frames_per_s"]
+        summary = train(cfg, run_dir)
+    return summary["members"][0]["frames_per_s"] if "members" in summary else summary["frames_per_s"]
 
 
 def app_frames_per_s_in_new_process(*overrides: str) -> float:
@@ -393,6 +403,38 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     return results
 
 
+def bench_population(budget: Budget) -> list[Measurement]:
+    """(h) ``population=N`` on each torch-batched classic-control env's default config, against single runs.
+
+    For N in ``population_sizes``: frames/s per member and summed over the N members,
+    over ``population_frames`` frames per member (the loop alone: no evaluation).
+    N = 1 is the single-run path, so N single runs in sequence sum to its frames/s;
+    ``/ N single runs`` is the population's summed frames/s over that. On MountainCar
+    the plain PyTorch reference (``bench/plain_reference.py``) runs the same
+    per-member schedule once, for ``/ plain``.
+    """
+    results = []
+    for env in ("mountaincar", "cartpole", "acrobot"):
+        per_member = {}
+        for members in budget.population_sizes:
+            cfg = default_config(f"env={env}", f"population={members}", f"train.max_frames={budget.population_frames}")
+            per_member[members] = training_frames_per_s(cfg)
+        plain = None
+        if env == "mountaincar":
+            plain = run_plain_reference(plain_config_of(default_config(f"train.max_frames={budget.population_frames}")))["frames_per_s"]
+            results.append(Measurement("population", f"{env}: plain PyTorch reference, one run", plain, "frames/s"))
+        for members, frames_per_s in per_member.items():
+            summed = members * frames_per_s
+            results += [
+                Measurement("population", f"{env} N={members}: frames/s per member", frames_per_s, "frames/s"),
+                Measurement("population", f"{env} N={members}: summed", summed, "frames/s"),
+                Measurement("population", f"{env} N={members}: summed / N single runs", summed / per_member[1], "x"),
+            ]
+            if plain is not None:
+                results.append(Measurement("population", f"{env} N={members}: summed / plain", summed / plain, "x"))
+    return results
+
+
 def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     """(e) Milliseconds of each part of one frame of the paper's per-step loop (N=1, eps=1).
 
@@ -500,6 +542,7 @@ SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
     "breakdown": bench_loop_breakdown,
     "reference": bench_against_plain_reference,
     "updates": bench_updates,
+    "population": bench_population,
 }
 """Run in order; each returns its figures, named after the section."""
 
