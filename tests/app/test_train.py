@@ -177,17 +177,18 @@ def test_multirun_sweep_writes_one_run_per_job(tmp_path, run_app):
 
 def test_the_study_sweeps_through_submitit_local_and_the_report_compares_the_explorers(tmp_path, run_app):
     sweep = tmp_path / "sweep"
-    overrides = ("experiment=study", "exploration=gaussian,noisy", "seed=0", "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}")
+    overrides = ("experiment=study", "exploration=gaussian,egreedy", "population=2", "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}")
     result = run_app("-m", *overrides, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    summaries = [json.loads(p.read_text()) for p in sorted(sweep.glob("*/summary.json"))]
-    assert sorted(s["method"] for s in summaries) == ["dqn+gaussian", "dqn+noisy"] and {s["tag"] for s in summaries} == {"study"}
+    summaries = [json.loads(p.read_text()) for p in sorted(sweep.glob("*/seed*/summary.json"))]  # a population's members
+    assert sorted((s["method"], s["seed"]) for s in summaries) == [("dqn+egreedy", 0), ("dqn+egreedy", 1), ("dqn+gaussian", 0), ("dqn+gaussian", 1)]
+    assert {s["tag"] for s in summaries} == {"study"}
     assert list((sweep / ".submitit").iterdir())  # the jobs went through submitit
     report = subprocess.run([sys.executable, "-m", "torchrl_mbe.report", str(sweep)], capture_output=True, text=True, timeout=300)
     assert report.returncode == 0, report.stderr
     results = (sweep / "report" / "results.md").read_text()
     exploration_rows = [line for line in results.split("### Exploration")[1].splitlines() if line.startswith("| dqn+")]
-    assert [row.split(" | ")[0] for row in exploration_rows] == ["| dqn+gaussian", "| dqn+noisy"]  # coverage of both learning runs
+    assert [row.split(" | ")[0] for row in exploration_rows] == ["| dqn+egreedy", "| dqn+gaussian"]  # coverage of both explorers' members
 
 
 def test_the_slurm_launcher_config_selects_submitit_slurm(tmp_path, run_app):
