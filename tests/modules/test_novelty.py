@@ -212,7 +212,8 @@ def test_the_fit_is_low_rank_exactly_when_there_are_more_features_than_window_sl
     low_rank_fit = {"std", "standardized_window", "eigenvalues", "gram_eigenvectors"}
     assert "whitening" in buffers(50) and not low_rank_fit & buffers(50)
     assert low_rank_fit <= buffers(51) and "whitening" not in buffers(51)
-    assert "whitening" in DiagonalGaussianDensity(51, window=50).state_dict()
+    diagonal_fit = set(DiagonalGaussianDensity(51, window=50).state_dict())
+    assert "inverse_std" in diagonal_fit and not ({"whitening"} | low_rank_fit) & diagonal_fit  # no D x D matrix either
 
 
 def test_a_low_rank_fit_travels_in_the_state_dict_to_a_fresh_density():
@@ -284,6 +285,57 @@ def test_diagonal_gaussian_is_the_sum_of_per_dimension_normal_log_densities():
     states = torch.randn(5, 2, 3)
     expected = -torch.distributions.Normal(window.double().mean(0), window.double().std(0)).log_prob(states.double()).sum(-1)
     assert torch.allclose(density.score(states).double(), expected, atol=1e-4)
+
+
+def test_diagonal_gaussian_running_sums_fit_exactly_the_states_in_the_window_as_it_wraps():
+    density = DiagonalGaussianDensity(window=30, batch_shape=(2,))
+    visited = torch.randn(95, 2, 3) * torch.tensor([1.0, 10.0, 0.1]) + 5.0
+    states = torch.randn(5, 2, 3)
+    for end in range(5, 96, 5):  # pushes of 5, wrapping the window three times
+        density.update(visited[end - 5 : end])
+        window = visited[max(end - 30, 0) : end].double()
+        expected = -torch.distributions.Normal(window.mean(0), window.std(0)).log_prob(states.double()).sum(-1)
+        torch.testing.assert_close(density.score(states).double(), expected, rtol=1e-6, atol=1e-3)
+
+
+def test_diagonal_gaussian_without_a_window_fits_every_state_and_stores_none():
+    density = DiagonalGaussianDensity(window=None)
+    visited = torch.randn(500, 3) * torch.tensor([1.0, 10.0, 0.1])
+    for chunk in visited.split(64):
+        density.update(chunk)
+    assert density.num_stored == 500 and density.states is None
+    states = torch.randn(5, 3)
+    expected = -torch.distributions.Normal(visited.double().mean(0), visited.double().std(0)).log_prob(states.double()).sum(-1)
+    torch.testing.assert_close(density.score(states).double(), expected, rtol=1e-6, atol=1e-3)
+    fresh = DiagonalGaussianDensity(window=None)
+    fresh.load_state_dict(density.state_dict())
+    assert torch.equal(fresh.score(states), density.score(states))
+    with pytest.raises(ValueError, match="window=None"):
+        density.window_states()
+
+
+def test_without_a_window_the_diagonal_gaussian_ranks_one_hot_cells_by_how_often_they_were_visited():
+    cells = torch.eye(6)
+    visits = torch.tensor([40, 1, 7, 3, 0, 12])  # cell 4 never visited
+    density = DiagonalGaussianDensity(window=None)
+    density.update(cells.repeat_interleave(visits, dim=0)[torch.randperm(int(visits.sum()))])
+    assert density.score(cells).argsort(descending=True).tolist() == visits.argsort().tolist()
+
+
+def test_only_the_running_moment_scorer_accepts_an_unbounded_window():
+    with pytest.raises(ValueError, match="RollingGaussianDensity scores against stored states"):
+        RollingGaussianDensity(window=None)
+
+
+def test_a_diagonal_gaussian_saved_with_a_whitening_matrix_loads_and_scores_its_window():
+    density = DiagonalGaussianDensity(window=20)
+    density.update(torch.randn(35, 3))
+    states = torch.randn(4, 3)
+    old_layout = {key: value for key, value in density.state_dict().items() if key not in ("state_sum", "state_square_sum", "inverse_std")}
+    old_layout["whitening"] = torch.eye(3, dtype=torch.float64)  # what an earlier version saved beside the window
+    fresh = DiagonalGaussianDensity(3, window=20)
+    fresh.load_state_dict(old_layout)
+    torch.testing.assert_close(fresh.score(states), density.score(states))
 
 
 def test_k_nearest_score_is_the_mean_scaled_distance_to_the_k_closest_stored_states():

@@ -46,10 +46,14 @@ class RollingWindowNovelty(nn.Module):
     ``.to(device)`` and collector weight sync. Compiled code cannot branch on
     ``fit_stale``: there the fit runs at every score.
 
+    A scorer that fits running moments (:class:`DiagonalGaussianDensity`) also
+    takes ``window=None``: every state it is given counts, none is kept.
+
     Args:
         num_features (int, optional): size of a state vector; inferred from the
             first :meth:`update` when ``None`` (the default).
-        window (int): how many recent states to keep (the paper's F). At least 2.
+        window (int or None): how many recent states to keep (the paper's F). At
+            least 2; ``None`` only where ``counts_every_state`` is allowed.
 
     Keyword Args:
         batch_shape (tuple of int): one independent window per batch element.
@@ -57,10 +61,12 @@ class RollingWindowNovelty(nn.Module):
         device (torch.device, optional): where the buffers live.
     """
 
+    counts_every_state: bool = False  # whether window=None (every state given, none kept) is allowed
+
     def __init__(
         self,
         num_features: int | None = None,
-        window: int = 50,
+        window: int | None = 50,
         *,
         batch_shape: Sequence[int] = (),
         device: torch.device | str | None = None,
@@ -68,13 +74,15 @@ class RollingWindowNovelty(nn.Module):
         super().__init__()
         if num_features is not None and int(num_features) < 1:
             raise ValueError(f"num_features must be a positive integer or None, got {num_features}.")
-        if int(window) < 2:
+        if window is None and not self.counts_every_state:
+            raise ValueError(f"window=None: {type(self).__name__} scores against stored states; give it an integer >= 2.")
+        if window is not None and int(window) < 2:
             raise ValueError(
                 f"window must be an integer >= 2 (the paper uses 50), got {window}: "
                 "a density needs at least two states to estimate a spread."
             )
         self.num_features: int | None = None
-        self.window = int(window)
+        self.window = None if window is None else int(window)
         self.batch_shape = torch.Size(batch_shape)
         self.register_buffer("states", None)
         self.register_buffer("num_seen", torch.zeros((), dtype=torch.int64, device=device))
@@ -85,15 +93,18 @@ class RollingWindowNovelty(nn.Module):
     def _allocate(self, num_features: int) -> None:
         """Creates the window (and, in subclasses, what the fit caches) for states of ``num_features``."""
         self.num_features = num_features
-        self.states = torch.zeros(*self.batch_shape, self.window, num_features, device=self.num_seen.device)
+        if self.window is not None:
+            self.states = torch.zeros(*self.batch_shape, self.window, num_features, device=self.num_seen.device)
 
     @property
     def num_stored(self) -> int:
-        """How many slots of the window hold a state (at most ``window``)."""
-        return min(int(self.num_seen), self.window)
+        """How many states the fit counts: slots of the window holding one (at most ``window``), or every one seen."""
+        return int(self.num_seen) if self.window is None else min(int(self.num_seen), self.window)
 
     def window_states(self) -> torch.Tensor:
         """The stored states in visiting order, shape ``(*batch_shape, num_stored, num_features)``."""
+        if self.window is None:
+            raise ValueError(f"{type(self).__name__}(window=None) keeps no states, only their moments.")
         seen, stored = int(self.num_seen), self.num_stored
         order = torch.arange(seen - stored, seen, device=self.states.device) % self.window
         return self.states[..., order, :]
@@ -130,11 +141,15 @@ class RollingWindowNovelty(nn.Module):
         if self.num_features is None:
             self._allocate(states.shape[-1])
         states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
-        states = states[-self.window :].to(self.states)
-        slots = (self.num_seen + torch.arange(states.shape[0], device=self.states.device)) % self.window
-        self.states[..., slots, :] = states.movedim(0, -2)
+        if self.window is not None:
+            states = states[-self.window :].to(self.states)
+            self.states[..., self._next_slots(states.shape[0]), :] = states.movedim(0, -2)
         self.num_seen.add_(states.shape[0])
         self.fit_stale.fill_(True)
+
+    def _next_slots(self, count: int) -> torch.Tensor:
+        """The window slots the next ``count`` (at most ``window``) states are written to."""
+        return (self.num_seen + torch.arange(count, device=self.num_seen.device)) % self.window
 
     def reset(self) -> None:
         """Empties the window."""
@@ -439,12 +454,19 @@ class GaussianKernelNovelty(RollingWindowNovelty):
 
 
 class DiagonalGaussianDensity(RollingGaussianDensity):
-    """Gaussian with a diagonal covariance fitted to the last ``window`` visited states.
+    """Gaussian with a diagonal covariance fitted to the last ``window`` visited states, or to all of them.
 
     ``score(s) = -log N(s | mu_F, diag(sigma_F^2))``: :class:`RollingGaussianDensity`
     with the correlations between dimensions dropped, so that a window whose
     states move along a line is not read as a thin ellipse. Same arguments
     (``min_correlation_eigenvalue`` has nothing to floor here).
+
+    The fit keeps running sums of the states and of their squares (float64):
+    each state is added as it enters the window and subtracted as it leaves, so
+    an update and a refit cost ``O(D)``, whatever the window. With
+    ``window=None`` every state given counts and none is stored (``O(D)``
+    memory): on one-hot states (DeepSea's grid) the score then ranks cells by
+    how often they were ever visited, as a visit count does.
 
     Examples:
         >>> import torch
@@ -454,24 +476,95 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         >>> scores = density.score(torch.tensor([[0.0, 0.0], [5.0, 5.0]]))
         >>> bool(scores[1] > scores[0])
         True
+        >>> cells = torch.eye(3)
+        >>> counts = DiagonalGaussianDensity(window=None)  # every visit counts
+        >>> counts.update(cells[[0, 0, 0, 1, 0, 0, 1, 2]])
+        >>> counts.score(cells).argsort(descending=True).tolist()  # the cell visited least first
+        [2, 1, 0]
     """
 
+    counts_every_state = True
+
+    def _allocate(self, num_features: int) -> None:
+        RollingWindowNovelty._allocate(self, num_features)
+        shape = (*self.batch_shape, num_features)
+        kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
+        self.register_buffer("state_sum", torch.zeros(shape, **kwargs))
+        self.register_buffer("state_square_sum", torch.zeros(shape, **kwargs))
+        self.register_buffer("loc", torch.zeros(shape, **kwargs))
+        self.register_buffer("inverse_std", torch.ones(shape, **kwargs))
+        self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
+
+    @torch.no_grad()
+    def update(self, states: torch.Tensor) -> None:
+        """Pushes visited states as :meth:`RollingWindowNovelty.update` does, adding them to the sums and the states they evict subtracted."""
+        if self.num_features is None:
+            self._allocate(states.shape[-1])
+        states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
+        if self.window is not None:
+            states = states[-self.window :]
+            self._subtract_leaving(states.shape[0])
+        entering = states.to(torch.float64)
+        self.state_sum.add_(entering.sum(0))
+        self.state_square_sum.add_(entering.square().sum(0))
+        super().update(states)
+
+    def _subtract_leaving(self, count: int) -> None:
+        """Takes the states that the next ``count`` pushes overwrite out of the sums."""
+        positions = self.num_seen + torch.arange(count, device=self.num_seen.device)
+        held = (positions >= self.window).to(torch.float64).unsqueeze(-1)  # the slot holds an older state
+        leaving = self.states[..., self._next_slots(count), :].to(torch.float64) * held
+        self.state_sum.sub_(leaving.sum(-2))
+        self.state_square_sum.sub_(leaving.square().sum(-2))
+
+    def reset(self) -> None:
+        super().reset()
+        if self.num_features is not None:
+            self.state_sum.zero_()
+            self.state_square_sum.zero_()
+
     def _refit(self) -> None:
-        """Mean and per-dimension spread of the window: ``O(window * D)``, no ``D x D`` covariance, no ``eigh``.
+        """Mean and per-dimension spread from the running sums: no ``D x D`` covariance, no ``eigh``.
 
         The same density as the full Gaussian with its correlation matrix set to the
-        identity (whose eigenvalues are 1), so the whitening matrix is ``diag(1/std)``.
+        identity (whose eigenvalues are 1), the unbiased variance floored at ``min_variance``.
         """
-        moments = self._window_moments()
-        if moments is None:
-            return
-        loc, centered, degrees = moments
-        std = (centered.square().sum(-2) / degrees).clamp_min(self.min_variance).sqrt()
-        self._store_fit(loc, torch.diag_embed(1 / std), 2 * std.log().sum(-1))
+        count = self.num_seen if self.window is None else self.num_seen.clamp_max(self.window)
+        count = count.to(torch.float64)
+        loc = self.state_sum / count.clamp_min(1)
+        variance = (self.state_square_sum - count * loc.square()) / (count - 1).clamp_min(1)
+        std = variance.clamp_min(self.min_variance).sqrt()
+        self.loc.copy_(loc)
+        self.inverse_std.copy_(1 / std)
+        self._store_log_normalizer(2 * std.log().sum(-1))
+
+    def _whitened_mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+        return (centered * self.inverse_std).square().sum(-1)
+
+    @property
+    def covariance_matrix(self) -> torch.Tensor:
+        """The floored diagonal covariance the density uses, ``(*batch_shape, D, D)``."""
+        self._refit_if_stale()
+        return torch.diag_embed(self.inverse_std.pow(-2)).to(torch.float32)
 
     def _fits_low_rank(self) -> bool:
-        """Never: with no correlations there are no eigenpairs, the fit is ``diag(1 / std)`` at every size."""
+        """Never: with no correlations there are no eigenpairs, the fit is ``1 / std`` per dimension at every size."""
         return False
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
+        if self.num_features is None and prefix + "state_sum" in state_dict:  # window=None keeps no states to size from
+            self._allocate(state_dict[prefix + "state_sum"].shape[-1])
+        if prefix + "whitening" in state_dict:  # saved before the running sums: they are its window's
+            self._sums_from_saved_window(state_dict, prefix)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def _sums_from_saved_window(self, state_dict: dict, prefix: str) -> None:
+        state_dict.pop(prefix + "whitening")
+        stored = state_dict[prefix + "states"][..., : min(int(state_dict[prefix + "num_seen"]), self.window), :].to(torch.float64)
+        state_dict[prefix + "state_sum"] = stored.sum(-2)
+        state_dict[prefix + "state_square_sum"] = stored.square().sum(-2)
+        state_dict[prefix + "inverse_std"] = torch.ones_like(stored.sum(-2))
+        state_dict[prefix + "fit_stale"] = torch.ones((), dtype=torch.bool)
 
 
 def _offsets_in_window_spreads(
