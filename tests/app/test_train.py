@@ -114,11 +114,12 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(tm
     "overrides, message",
     [
         (["exploration.window=1"], "exploration.window=1: expected an integer >= 2"),
+        (["exploration=diagonal", "exploration.window=1"], "exploration.window=1: expected an integer >= 2 .* or null"),
         (["buffer.size=-5"], "buffer.size=-5: expected a positive integer"),
         (["algo.batch_size=0"], "algo.batch_size=0: expected a positive integer"),
         (["env.name=Pendulum-v1"], "Pendulum-v1 has a Box action space"),
         (["env.name=NoSuchEnv-v9"], "Unknown environment 'NoSuchEnv-v9'"),
-        (["env=lunarlander", "dynamics=oracle"], "dynamics=oracle: the oracle exists for MountainCar-v0 only"),
+        (["env=lunarlander", "dynamics=oracle"], r"dynamics=oracle: lunarlander has no oracle dynamics \(those that have: mountaincar, deepsea\)"),
         (["env.num_envs=3"], "collector.frames_per_batch=16: expected a multiple of env.num_envs=3"),
         (["algo.gamma=1.5"], r"algo.gamma=1.5: expected a discount in \[0, 1\]"),
         (["algo.gamma=-0.5"], r"algo.gamma=-0.5: expected a discount in \[0, 1\]"),

@@ -211,3 +211,18 @@ def test_make_env_errors_name_what_is_accepted():
         make_env("cartpole", backend="gym", size=10)
     with pytest.raises(ValueError, match=r"Unknown environment 'deep-sea'. Supported: .*deepsea \(DeepSea\)"):
         make_env("deep-sea")
+
+
+@pytest.mark.parametrize("size", [1, 5, 12])
+def test_the_oracle_predicts_every_step_the_env_takes_from_every_cell(size):
+    from torchrl_mbe.envs.deepsea import DeepSeaDynamics
+
+    env = BatchedDeepSeaEnv(64, size=size, seed=0)
+    oracle = DeepSeaDynamics(env.action_spec, size=size)
+    td = env.reset()
+    for _ in range(size):  # random paths through the grid: both actions from the cells they reach, then the null row
+        td["action"] = env.action_spec.rand()
+        predicted = oracle(td.clone())["predicted_observation"]
+        td = env.step(td)
+        assert torch.equal(predicted, td["next", "observation"])
+        td = td["next"]

@@ -40,7 +40,7 @@ from torchrl_mbe.app.settings import (
     one_of,
     setting,
 )
-from torchrl_mbe.envs.registry import TASKS, resolve_env_id
+from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 from torchrl_mbe.modules.exploration import check_eps_schedule
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
@@ -107,7 +107,7 @@ class ReinforceConfig:
 
 @dataclass
 class DynamicsConfig:
-    name: str = setting("mlp", one_of("mlp", "oracle"))  # oracle: MountainCar's true physics
+    name: str = setting("mlp", one_of("mlp", "oracle"))  # oracle: the true dynamics (MountainCar, DeepSea)
     num_cells: list[int] = setting([64, 64], LAYERS)
     lr: float = setting(1e-3, POSITIVE)
     batch_size: int = setting(256, POSITIVE_INT)
@@ -251,8 +251,9 @@ def _check_together(config: Config) -> None:
             check_eps_schedule(algo.eps_init, algo.eps_end, algo.eps_annealing_frames, algo.eps_schedule)
         except ValueError as error:  # the exploration module's own rule, named by the keys it reads
             raise ConfigError(f"algo (eps_init, eps_end, eps_schedule): {error}") from None
-    if is_planning(config) and config.dynamics.name == "oracle" and env_id != "MountainCar-v0":
-        raise ConfigError(f"dynamics=oracle: the oracle exists for MountainCar-v0 only, not {config.env.name}.")
+    if is_planning(config) and config.dynamics.name == "oracle" and getattr(task_of(env_id), "oracle", None) is None:
+        with_oracle = ", ".join(alias for alias, task in TASKS.items() if task.oracle is not None)
+        raise ConfigError(f"dynamics=oracle: {config.env.name} has no oracle dynamics (those that have: {with_oracle}); use dynamics=mlp.")
     if config.population > 1:
         _check_population(config, env_id)
 

@@ -31,6 +31,7 @@ from torchrl_mbe.app.run import (
     evaluate_and_checkpoint_if_due,
     finish_run,
     keep_in_checkpoints,
+    env_options,
     make_run_env,
     open_run,
     record_frames,
@@ -226,7 +227,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     q_loss = loss_class(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
     _resolve_input_keys(q_loss)
-    context = ExplorerContext(cfg, env, actor, q_loss, action_spec, observation_size, device, members)
+    context = ExplorerContext(cfg, env, actor, q_loss, action_spec, observation_size, device, members, env_options(cfg.env))
     explorer = explorer_class.build(context)
     q_step = GradientStep(
         lambda batch: q_loss(batch)[loss_key], adam(q_loss.parameters(), algo.lr), algo.max_grad_norm, compile=cfg.compile, num_members=members

@@ -33,7 +33,7 @@ from torchrl.objectives import DQNLoss, RNDLoss
 from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
-from torchrl_mbe.envs import MountainCarDynamics
+from torchrl_mbe.envs import resolve_env_id, task_of
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.modules import novelty as scorers
@@ -70,6 +70,7 @@ class ExplorerContext:
     observation_size: int
     device: torch.device
     num_members: int | None = None  # a population's size M (the env batch is [num_envs, M]); None: one agent
+    env_options: dict = dataclasses.field(default_factory=dict)  # the env's torch keyword arguments (DeepSea's size)
 
 
 class Explorer:
@@ -315,8 +316,8 @@ class PlanningExplorer(EGreedyExplorer):
     """The paper's exploration: with probability eps, the action whose predicted next state the novelty scorer rates rarest.
 
     The policy is :class:`~torchrl_mbe.ModelBasedExplorationPolicy` around the actor;
-    the dynamics model is learned (``dynamics=mlp``) or MountainCar's physics
-    (``dynamics=oracle``, nothing to train). Its error on every new batch, before
+    the dynamics model is learned (``dynamics=mlp``) or the task's exact dynamics
+    (``dynamics=oracle``: MountainCar's physics, DeepSea's grid; nothing to train). Its error on every new batch, before
     it is trained on, feeds the policy's warm-up switch. Subclasses choose the
     novelty scorer (``scorer``).
     """
@@ -338,7 +339,7 @@ class PlanningExplorer(EGreedyExplorer):
         cfg = context.cfg
         exploration = cfg.exploration
         if cfg.dynamics.name == "oracle":
-            dynamics = MountainCarDynamics(context.action_spec)
+            dynamics = task_of(resolve_env_id(cfg.env.name)).oracle(context.action_spec, **context.env_options)
         else:
             dynamics = DynamicsModel(
                 context.observation_size, context.action_spec, cfg.dynamics.num_cells, num_members=context.num_members, device=context.device
@@ -428,6 +429,7 @@ class KernelExplorer(PlanningExplorer):
 @dataclass
 class DiagonalExploration(PlanningExploration):
     name: str = "diagonal"  # a Gaussian without correlations
+    window: Optional[int] = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())  # null: every visited state
 
 
 class DiagonalExplorer(PlanningExplorer):

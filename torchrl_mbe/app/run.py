@@ -49,6 +49,7 @@ __all__ = [
     "play_episode",
     "record_updates",
     "make_run_env",
+    "env_options",
     "keep_in_checkpoints",
     "note_evaluation",
     "evaluate_members",
@@ -185,9 +186,13 @@ def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int) -> EnvBase:
 
     With ``population=M > 1`` the batch is ``(num_envs, M)``: ``num_envs`` copies per member.
     """
-    options = {"size": cfg.env.size} if cfg.env.size is not None else {}
     batch = num_envs if cfg.population == 1 else (num_envs, cfg.population)
-    return make_env(cfg.env.name, num_envs=batch, seed=seed, device=cfg.device, **options)
+    return make_env(cfg.env.name, num_envs=batch, seed=seed, device=cfg.device, **env_options(cfg.env))
+
+
+def env_options(env: DictConfig) -> dict:
+    """The keyword arguments of the env's torch implementation that the ``env`` config sets (DeepSea's ``size``)."""
+    return {"size": env.size} if env.size is not None else {}
 
 
 def _summary_of_this_checkpoint(run_dir: Path, progress: Progress) -> dict | None:

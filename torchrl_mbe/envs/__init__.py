@@ -1,14 +1,14 @@
 """Environments: the task registry, ``make_env``, and the torch-batched tasks.
 
-The torch-batched envs are MountainCar-v0 (with its oracle dynamics), CartPole-v1,
-Acrobot-v1 and bsuite's DeepSea; each one's ``state_dict`` holds its whole state,
+The torch-batched envs are MountainCar-v0, CartPole-v1, Acrobot-v1 and bsuite's
+DeepSea (MountainCar and DeepSea with their oracle dynamics); each one's ``state_dict`` holds its whole state,
 random generator included (see :class:`~torchrl_mbe.envs.batched.BatchedTorchEnv`).
 """
 from __future__ import annotations
 
 from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv, acrobot_step
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv, cartpole_step
-from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
+from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
 from torchrl_mbe.envs.episodes import Episode, finished_episodes, first_episodes, reached_goal
 from torchrl_mbe.envs.make import make_env
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics, mountaincar_step
@@ -19,6 +19,7 @@ __all__ = [
     "BatchedCartPoleEnv",
     "BatchedDeepSeaEnv",
     "BatchedMountainCarEnv",
+    "DeepSeaDynamics",
     "EnvBounds",
     "Episode",
     "MountainCarDynamics",

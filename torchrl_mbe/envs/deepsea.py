@@ -15,12 +15,88 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-from tensordict import TensorDictBase
-from torchrl.data import Bounded
+from tensordict import NestedKey, TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.data import Bounded, TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedTorchEnv
+from torchrl_mbe.modules.actions import action_indices, discrete_action_spec
 
-__all__ = ["BatchedDeepSeaEnv"]
+__all__ = ["BatchedDeepSeaEnv", "DeepSeaDynamics", "deepsea_action_mapping"]
+
+
+def deepsea_action_mapping(size: int, mapping_seed: int | None = 42) -> torch.Tensor:
+    """Which action moves right in each cell, ``(size, size)`` int64: bsuite's draw, or all ones for ``mapping_seed=None``.
+
+    Examples:
+        >>> from torchrl_mbe.envs.deepsea import deepsea_action_mapping
+        >>> deepsea_action_mapping(3).tolist()
+        [[0, 1, 1], [1, 0, 0], [0, 1, 1]]
+    """
+    if mapping_seed is None:
+        return torch.ones(size, size, dtype=torch.int64)
+    return torch.as_tensor(np.random.RandomState(mapping_seed).binomial(1, 0.5, [size, size]), dtype=torch.int64)
+
+
+class DeepSeaDynamics(TensorDictModuleBase):
+    """DeepSea's exact dynamics (the deterministic variant) as a dynamics module: the oracle of ``dynamics=oracle``.
+
+    It predicts what :class:`BatchedDeepSeaEnv` of the same ``size`` and
+    ``mapping_seed`` returns: the one-hot cell one row down and one column to the
+    side the action leads in the current cell, all zeros after the last row.
+    With it the planner's choices depend on the novelty scorer alone, not on how
+    well a model has learned the per-cell action mapping.
+
+    Args:
+        action_spec (OneHot, Categorical or Composite): how ``action`` is encoded.
+
+    Keyword Args:
+        size (int): the grid's side N. Defaults to 10.
+        mapping_seed (int): bsuite's mapping seed. Defaults to 42.
+        observation_key (NestedKey): defaults to ``"observation"``.
+        action_key (NestedKey): defaults to ``"action"``.
+        out_key (NestedKey): defaults to ``"predicted_observation"``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import Categorical
+        >>> from torchrl_mbe.envs.deepsea import DeepSeaDynamics
+        >>> oracle = DeepSeaDynamics(Categorical(2), size=3)
+        >>> start = torch.eye(9)[0]  # the top-left cell
+        >>> td = TensorDict({"observation": start.expand(2, 9), "action": torch.tensor([0, 1])}, [2])
+        >>> oracle(td)["predicted_observation"].argmax(-1).tolist()  # action 0 moves right here, to cell (1, 1)
+        [4, 3]
+    """
+
+    def __init__(
+        self,
+        action_spec: TensorSpec,
+        *,
+        size: int = 10,
+        mapping_seed: int = 42,
+        observation_key: NestedKey = "observation",
+        action_key: NestedKey = "action",
+        out_key: NestedKey = "predicted_observation",
+    ) -> None:
+        super().__init__()
+        self.action_spec = discrete_action_spec(action_spec, action_key)
+        self.size = int(size)
+        self.in_keys = [observation_key, action_key]
+        self.out_keys = [out_key]
+        self.register_buffer("action_mapping", deepsea_action_mapping(self.size, mapping_seed).to(self.action_spec.device), persistent=False)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation_key, action_key = self.in_keys
+        observation = tensordict.get(observation_key)
+        cell = observation.argmax(-1)
+        row, column = cell // self.size, cell % self.size
+        right = action_indices(tensordict.get(action_key), self.action_spec) == self.action_mapping[row, column]
+        column = torch.where(right, column + 1, column - 1).clamp(0, self.size - 1)
+        on_grid = (observation.sum(-1) > 0) & (row + 1 < self.size)  # else the null observation after the last row
+        following = torch.nn.functional.one_hot((row + 1).clamp_max(self.size - 1) * self.size + column, self.size**2)
+        tensordict.set(self.out_keys[0], following.to(observation.dtype) * on_grid.unsqueeze(-1))
+        return tensordict
 
 
 class BatchedDeepSeaEnv(BatchedTorchEnv):
@@ -124,12 +200,8 @@ class BatchedDeepSeaEnv(BatchedTorchEnv):
         self._make_spec(
             Bounded(low=0.0, high=1.0, shape=(*self.batch_size, cells), dtype=torch.float32, device=self.device)
         )
-        if randomize_actions:
-            mapping = np.random.RandomState(mapping_seed).binomial(1, 0.5, [self.size, self.size])
-        else:
-            mapping = np.ones([self.size, self.size])
         # The MDP, fixed by the arguments, is no part of state_dict; the positions are.
-        mapping = torch.as_tensor(mapping, dtype=torch.int64, device=self.device)
+        mapping = deepsea_action_mapping(self.size, mapping_seed if randomize_actions else None).to(self.device)
         self.register_buffer("action_mapping", mapping, persistent=False)
         self.register_buffer("cells", torch.arange(cells, device=self.device), persistent=False)
         self.register_buffer("row", torch.zeros(self.batch_size, dtype=torch.int64, device=self.device))

@@ -15,12 +15,13 @@ from typing import Literal
 
 import gymnasium as gym
 import numpy as np
+from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 
 from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv
-from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv
-from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv
+from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
+from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics
 
 __all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "task_of", "resolve_env_id"]
 
@@ -98,6 +99,9 @@ class Task:
             (``cls(num_envs, device=..., **env_kwargs)``), used by ``make_env(..., backend="torch")``.
         gymnasium (bool): whether ``env_id`` is a gymnasium id; ``False`` for a
             task that exists only as ``torch_env``.
+        oracle (type, optional): the task's exact dynamics as a dynamics module
+            (``cls(action_spec, **env_kwargs)``, the ``env_kwargs`` of ``torch_env``),
+            for ``dynamics=oracle``; ``None`` where the project has none.
     """
 
     alias: str
@@ -107,6 +111,7 @@ class Task:
     bounds: EnvBounds | None
     torch_env: type[EnvBase] | None = None
     gymnasium: bool = True
+    oracle: type[TensorDictModuleBase] | None = None
 
 
 TASKS: dict[str, Task] = {
@@ -119,6 +124,7 @@ TASKS: dict[str, Task] = {
             goal="terminated",  # the car reached the flag
             bounds=EnvBounds(low=(-1.2, -0.07), high=(0.6, 0.07), labels=("position", "velocity"), progress_dim=0),
             torch_env=BatchedMountainCarEnv,
+            oracle=MountainCarDynamics,
         ),
         Task(
             "lunarlander",
@@ -173,6 +179,7 @@ TASKS: dict[str, Task] = {
             bounds=None,  # the report would decode the one-hot observation to a (row, column) plane
             torch_env=BatchedDeepSeaEnv,
             gymnasium=False,
+            oracle=DeepSeaDynamics,
         ),
     )
 }
