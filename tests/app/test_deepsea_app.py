@@ -1,6 +1,8 @@
 """DeepSea in the app: the planner's rule alone, with the true dynamics (conf/experiment/deepsea_oracle.yaml)."""
 from __future__ import annotations
 
+import pytest
+
 from torchrl_mbe.app import train
 
 
@@ -20,3 +22,13 @@ def test_a_population_plans_with_the_oracle_one_grid_per_member(compose_default,
     for seed in (0, 1):
         episodes = read_table(tmp_path / f"seed{seed}", "episodes")
         assert any(float(row["return"]) > 0.5 for row in episodes)  # both members found the treasure
+
+
+def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line_before_training(compose_default, tmp_path, monkeypatch):
+    from torchrl_mbe.app import ConfigError, replay
+
+    monkeypatch.setattr(replay, "_available_memory_bytes", lambda: 2**30)  # 1 GiB free
+    cfg = compose_default("experiment=deepsea_oracle", "env.size=50", "population=5", "buffer.size=20000")
+    with pytest.raises(ConfigError, match=r"buffer.size=20000: 5 x 20,000 transitions of 2,500-feature observations take about 2.8 GiB, more than the 1.0 GiB available"):
+        train(cfg, tmp_path)
+    assert not (tmp_path / "seed0" / "episodes.csv").exists()

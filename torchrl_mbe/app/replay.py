@@ -6,12 +6,47 @@ from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
-from torchrl.envs import MultiStepTransform
+from torchrl.envs import EnvBase, MultiStepTransform
 
-__all__ = ["SUCCESSOR_KEY", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
+from torchrl_mbe.app.settings import ConfigError
+
+__all__ = ["SUCCESSOR_KEY", "check_replay_memory", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
+
+
+OBSERVATIONS_PER_TRANSITION = 3  # the observation, the one n steps on, and the one-step successor (SUCCESSOR_KEY)
+
+
+def check_replay_memory(buffer: DictConfig, env: EnvBase, members: int, device: str) -> None:
+    """Refuses, in one line, a replay buffer in CPU memory whose observations of ``env`` alone exceed the memory available now.
+
+    TorchRL's ``LazyTensorStorage`` allocates its whole capacity at the first
+    ``extend``: too large a buffer (DeepSea at N=50 holds 2,500 features a state)
+    would otherwise be killed for memory after its first batch.
+    """
+    available = _available_memory_bytes() if torch.device(device).type == "cpu" else None
+    if available is None:
+        return
+    observation_size = env.observation_spec_unbatched["observation"].shape[-1]
+    needed = OBSERVATIONS_PER_TRANSITION * 4 * observation_size * buffer.size * members
+    if needed > available:
+        kept = f"{members} x {buffer.size:,}" if members > 1 else f"{buffer.size:,}"
+        raise ConfigError(
+            f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about "
+            f"{needed / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available; lower buffer.size (or population)."
+        )
+
+
+def _available_memory_bytes() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` in bytes; ``None`` where there is no such file."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            line = next(line for line in meminfo if line.startswith("MemAvailable:"))
+    except (OSError, StopIteration):
+        return None
+    return int(line.split()[1]) * 1024
 
 
 def make_replay_buffer(buffer: DictConfig, device: str) -> ReplayBuffer:
