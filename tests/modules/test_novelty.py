@@ -322,6 +322,18 @@ def test_without_a_window_the_diagonal_gaussian_ranks_one_hot_cells_by_how_often
     assert density.score(cells).argsort(descending=True).tolist() == visits.argsort().tolist()
 
 
+def test_the_diagonal_gaussian_over_every_state_compiles_with_fullgraph_and_scores_as_it_does_eagerly():
+    density = DiagonalGaussianDensity(4, window=None, batch_shape=(3,))
+    compiled_score = torch.compile(density.score, fullgraph=True, backend="aot_eager")
+    queries = torch.randn(4, 3, 4)
+    for visits in (0, 2, 5):
+        density.update(torch.randn(visits, 3, 4))
+        eager = density.score(queries)
+        torch.testing.assert_close(compiled_score(queries), eager, rtol=1e-5, atol=1e-5)
+    density.reset()
+    assert torch.equal(compiled_score(queries), torch.zeros(4, 3))
+
+
 def test_only_the_running_moment_scorer_accepts_an_unbounded_window():
     with pytest.raises(ValueError, match="RollingGaussianDensity scores against stored states"):
         RollingGaussianDensity(window=None)
