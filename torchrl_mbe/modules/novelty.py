@@ -142,10 +142,15 @@ class RollingWindowNovelty(nn.Module):
             self._allocate(states.shape[-1])
         states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
         if self.window is not None:
-            states = states[-self.window :].to(self.states)
-            self.states[..., self._next_slots(states.shape[0]), :] = states.movedim(0, -2)
+            states = states[-self.window :]
+        self._before_push(states)
+        if self.window is not None:
+            self.states[..., self._next_slots(states.shape[0]), :] = states.movedim(0, -2).to(self.states)
         self.num_seen.add_(states.shape[0])
         self.fit_stale.fill_(True)
+
+    def _before_push(self, states: torch.Tensor) -> None:
+        """Sees the states :meth:`update` is about to push, ``(count, *batch_shape, num_features)``, before they overwrite any slot."""
 
     def _next_slots(self, count: int) -> torch.Tensor:
         """The window slots the next ``count`` (at most ``window``) states are written to."""
@@ -495,19 +500,13 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         self.register_buffer("inverse_std", torch.ones(shape, **kwargs))
         self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
 
-    @torch.no_grad()
-    def update(self, states: torch.Tensor) -> None:
-        """Pushes visited states as :meth:`RollingWindowNovelty.update` does, adding them to the sums and the states they evict subtracted."""
-        if self.num_features is None:
-            self._allocate(states.shape[-1])
-        states = self._check_shape(states).reshape(-1, *self.batch_shape, self.num_features)
+    def _before_push(self, states: torch.Tensor) -> None:
+        """Adds the entering states to the sums and takes out the ones they overwrite in the window."""
         if self.window is not None:
-            states = states[-self.window :]
             self._subtract_leaving(states.shape[0])
         entering = states.to(torch.float64)
         self.state_sum.add_(entering.sum(0))
         self.state_square_sum.add_(entering.square().sum(0))
-        super().update(states)
 
     def _subtract_leaving(self, count: int) -> None:
         """Takes the states that the next ``count`` pushes overwrite out of the sums."""
