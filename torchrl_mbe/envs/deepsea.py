@@ -16,11 +16,10 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from tensordict import NestedKey, TensorDictBase
-from tensordict.nn import TensorDictModuleBase
 from torchrl.data import Bounded, TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedTorchEnv
-from torchrl_mbe.modules.actions import action_indices, discrete_action_spec
+from torchrl_mbe.modules.dynamics import ExactDynamics
 
 __all__ = ["BatchedDeepSeaEnv", "DeepSeaDynamics", "deepsea_action_mapping"]
 
@@ -38,7 +37,7 @@ def deepsea_action_mapping(size: int, mapping_seed: int | None = 42) -> torch.Te
     return torch.as_tensor(np.random.RandomState(mapping_seed).binomial(1, 0.5, [size, size]), dtype=torch.int64)
 
 
-class DeepSeaDynamics(TensorDictModuleBase):
+class DeepSeaDynamics(ExactDynamics):
     """DeepSea's exact dynamics (the deterministic variant) as a dynamics module: the oracle of ``dynamics=oracle``.
 
     It predicts what :class:`BatchedDeepSeaEnv` of the same ``size`` and
@@ -53,9 +52,7 @@ class DeepSeaDynamics(TensorDictModuleBase):
     Keyword Args:
         size (int): the grid's side N. Defaults to 10.
         mapping_seed (int): bsuite's mapping seed. Defaults to 42.
-        observation_key (NestedKey): defaults to ``"observation"``.
-        action_key (NestedKey): defaults to ``"action"``.
-        out_key (NestedKey): defaults to ``"predicted_observation"``.
+        **keys: the keys of :class:`~torchrl_mbe.modules.dynamics.ExactDynamics`.
 
     Examples:
         >>> import torch
@@ -69,34 +66,19 @@ class DeepSeaDynamics(TensorDictModuleBase):
         [4, 3]
     """
 
-    def __init__(
-        self,
-        action_spec: TensorSpec,
-        *,
-        size: int = 10,
-        mapping_seed: int = 42,
-        observation_key: NestedKey = "observation",
-        action_key: NestedKey = "action",
-        out_key: NestedKey = "predicted_observation",
-    ) -> None:
-        super().__init__()
-        self.action_spec = discrete_action_spec(action_spec, action_key)
+    def __init__(self, action_spec: TensorSpec, *, size: int = 10, mapping_seed: int = 42, **keys: NestedKey) -> None:
+        super().__init__(action_spec, **keys)
         self.size = int(size)
-        self.in_keys = [observation_key, action_key]
-        self.out_keys = [out_key]
         self.register_buffer("action_mapping", deepsea_action_mapping(self.size, mapping_seed).to(self.action_spec.device), persistent=False)
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation_key, action_key = self.in_keys
-        observation = tensordict.get(observation_key)
+    def step(self, observation: torch.Tensor, action_index: torch.Tensor) -> torch.Tensor:
         cell = observation.argmax(-1)
         row, column = cell // self.size, cell % self.size
-        right = action_indices(tensordict.get(action_key), self.action_spec) == self.action_mapping[row, column]
+        right = action_index == self.action_mapping[row, column]
         column = torch.where(right, column + 1, column - 1).clamp(0, self.size - 1)
         on_grid = (observation.sum(-1) > 0) & (row + 1 < self.size)  # else the null observation after the last row
         following = torch.nn.functional.one_hot((row + 1).clamp_max(self.size - 1) * self.size + column, self.size**2)
-        tensordict.set(self.out_keys[0], following.to(observation.dtype) * on_grid.unsqueeze(-1))
-        return tensordict
+        return following.to(observation.dtype) * on_grid.unsqueeze(-1)
 
 
 class BatchedDeepSeaEnv(BatchedTorchEnv):

@@ -13,12 +13,9 @@
 from __future__ import annotations
 
 import torch
-from tensordict import NestedKey, TensorDictBase
-from tensordict.nn import TensorDictModuleBase
-from torchrl.data import TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
-from torchrl_mbe.modules.actions import action_indices, discrete_action_spec
+from torchrl_mbe.modules.dynamics import ExactDynamics
 
 __all__ = ["MOUNTAINCAR", "mountaincar_step", "MountainCarDynamics", "BatchedMountainCarEnv"]
 
@@ -49,17 +46,10 @@ def mountaincar_step(observation: torch.Tensor, action_index: torch.Tensor) -> t
     return torch.stack([position, velocity], -1)
 
 
-class MountainCarDynamics(TensorDictModuleBase):
+class MountainCarDynamics(ExactDynamics):
     """MountainCar-v0's exact dynamics as a dynamics module (no parameters to learn).
 
-    Args:
-        action_spec (OneHot, Categorical or Composite): how ``action`` is encoded
-            (a ``Composite``, such as a ``QValueActor``'s spec, through its ``action`` entry).
-
-    Keyword Args:
-        observation_key (NestedKey): defaults to ``"observation"``.
-        action_key (NestedKey): defaults to ``"action"``.
-        out_key (NestedKey): defaults to ``"predicted_observation"``.
+    Args and keyword args: those of :class:`~torchrl_mbe.modules.dynamics.ExactDynamics`.
 
     Examples:
         >>> import torch
@@ -72,24 +62,8 @@ class MountainCarDynamics(TensorDictModuleBase):
         tensor([-0.4992,  0.0008])
     """
 
-    def __init__(
-        self,
-        action_spec: TensorSpec,
-        *,
-        observation_key: NestedKey = "observation",
-        action_key: NestedKey = "action",
-        out_key: NestedKey = "predicted_observation",
-    ) -> None:
-        super().__init__()
-        self.action_spec = discrete_action_spec(action_spec, action_key)  # also a QValueActor's Composite spec
-        self.in_keys = [observation_key, action_key]
-        self.out_keys = [out_key]
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation_key, action_key = self.in_keys
-        action_index = action_indices(tensordict.get(action_key), self.action_spec)
-        tensordict.set(self.out_keys[0], mountaincar_step(tensordict.get(observation_key), action_index))
-        return tensordict
+    def step(self, observation: torch.Tensor, action_index: torch.Tensor) -> torch.Tensor:
+        return mountaincar_step(observation, action_index)
 
 
 _START_POSITION_RANGE = (-0.6, -0.4)

@@ -1,4 +1,4 @@
-"""Learned dynamics: ``D(s, a)`` predicts the next observation."""
+"""Dynamics modules: ``D(s, a)`` predicts the next observation, learned (:class:`DynamicsModel`) or exact (:class:`ExactDynamics`)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -15,7 +15,7 @@ from torchrl_mbe.modules.networks import init_linear_layers
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.population import make_members_mlp
 
-__all__ = ["DynamicsModel", "action_indices", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
+__all__ = ["DynamicsModel", "ExactDynamics", "action_indices", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
 
 
 def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
@@ -35,6 +35,46 @@ def _observation_size(observation: int | TensorSpec, observation_key: NestedKey 
             raise ValueError(f"Expected a flat observation spec with a feature dimension, got shape {tuple(observation.shape)}.")
         return int(observation.shape[-1])
     return int(observation)
+
+
+class ExactDynamics(TensorDictModuleBase):
+    """Base of a task's true dynamics as a dynamics module (an oracle): nothing to learn, the planner's contract kept.
+
+    Subclasses implement :meth:`step` on the observation and the integer action
+    index; this class reads the keys and the action encoding.
+
+    Args:
+        action_spec (OneHot, Categorical or Composite): how ``action`` is encoded
+            (a ``Composite``, such as a ``QValueActor``'s spec, through its ``action_key`` entry).
+
+    Keyword Args:
+        observation_key (NestedKey): defaults to ``"observation"``.
+        action_key (NestedKey): defaults to ``"action"``.
+        out_key (NestedKey): defaults to ``"predicted_observation"``.
+    """
+
+    def __init__(
+        self,
+        action_spec: TensorSpec,
+        *,
+        observation_key: NestedKey = "observation",
+        action_key: NestedKey = "action",
+        out_key: NestedKey = "predicted_observation",
+    ) -> None:
+        super().__init__()
+        self.action_spec = discrete_action_spec(action_spec, action_key)
+        self.in_keys = [observation_key, action_key]
+        self.out_keys = [out_key]
+
+    def step(self, observation: torch.Tensor, action_index: torch.Tensor) -> torch.Tensor:
+        """The next observation after the action of index ``action_index`` from ``observation``."""
+        raise NotImplementedError
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation_key, action_key = self.in_keys
+        action_index = action_indices(tensordict.get(action_key), self.action_spec)
+        tensordict.set(self.out_keys[0], self.step(tensordict.get(observation_key), action_index))
+        return tensordict
 
 
 class DynamicsModel(TensorDictModuleBase):
