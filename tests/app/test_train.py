@@ -178,7 +178,7 @@ def test_multirun_sweep_writes_one_run_per_job(tmp_path, run_app):
 
 def test_the_study_sweeps_through_submitit_local_and_the_report_compares_the_explorers(tmp_path, run_app):
     sweep = tmp_path / "sweep"
-    overrides = ("experiment=study", "exploration=gaussian,egreedy", "population=2", "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}")
+    overrides = ("experiment=study", "exploration=gaussian,egreedy", "seed=0", "population=2", "hydra/launcher=submitit_local", f"hydra.sweep.dir={sweep}")
     result = run_app("-m", *overrides, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     summaries = [json.loads(p.read_text()) for p in sorted(sweep.glob("*/seed*/summary.json"))]  # a population's members
