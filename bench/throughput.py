@@ -57,6 +57,7 @@ from torchrl_mbe.app import register_configs, train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
 from torchrl_mbe.app.dqn import fit_q_input_norm, update_q
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, ReplayTransitions, make_replay_buffer
+from torchrl_mbe.envs.registry import resolve_env_id
 
 RESULTS_DIR = Path(__file__).parent / "results"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
@@ -102,7 +103,7 @@ class Budget:
 
 FULL = Budget(
     warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3,
-    reference_frames=20_000, population_frames=4000, population_sizes=(1, 5, 20),
+    reference_frames=20_000, population_frames=4000, population_sizes=(1, 5, 20, 100),
 )
 QUICK = Budget(
     warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1,
@@ -331,11 +332,12 @@ def default_config(*overrides: str) -> DictConfig:
 
 
 def plain_config_of(cfg: DictConfig) -> PlainConfig:
-    """The plain reference's settings for the app's composed ``cfg`` (MountainCar, one hidden width)."""
+    """The plain reference's settings for the app's composed ``cfg`` (a gymnasium env, one hidden width)."""
     algo, dynamics = cfg.algo, cfg.dynamics
     if len({*algo.num_cells}) != 1 or len({*dynamics.num_cells}) != 1 or algo.target_update != "hard" or not algo.double_dqn:
         raise ValueError("the plain reference implements equal hidden layers, hard target copies and double DQN only")
     return PlainConfig(
+        env_id=resolve_env_id(cfg.env.name),
         num_envs=cfg.env.num_envs,
         exploration=cfg.exploration.name,
         max_frames=cfg.train.max_frames,
@@ -409,9 +411,9 @@ def bench_population(budget: Budget) -> list[Measurement]:
     For N in ``population_sizes``: frames/s per member and summed over the N members,
     over ``population_frames`` frames per member (the loop alone: no evaluation).
     N = 1 is the single-run path, so N single runs in sequence sum to its frames/s;
-    ``/ N single runs`` is the population's summed frames/s over that. On MountainCar
-    the plain PyTorch reference (``bench/plain_reference.py``) runs the same
-    per-member schedule once, for ``/ plain``.
+    ``/ N single runs`` is the population's summed frames/s over that. The plain
+    PyTorch reference (``bench/plain_reference.py``) runs each env's per-member
+    schedule once (on gymnasium's env), for ``/ plain``.
     """
     results = []
     for env in ("mountaincar", "cartpole", "acrobot"):
@@ -419,19 +421,17 @@ def bench_population(budget: Budget) -> list[Measurement]:
         for members in budget.population_sizes:
             cfg = default_config(f"env={env}", f"population={members}", f"train.max_frames={budget.population_frames}")
             per_member[members] = training_frames_per_s(cfg)
-        plain = None
-        if env == "mountaincar":
-            plain = run_plain_reference(plain_config_of(default_config(f"train.max_frames={budget.population_frames}")))["frames_per_s"]
-            results.append(Measurement("population", f"{env}: plain PyTorch reference, one run", plain, "frames/s"))
+        single = default_config(f"env={env}", f"train.max_frames={budget.population_frames}")
+        plain = run_plain_reference(plain_config_of(single))["frames_per_s"]
+        results.append(Measurement("population", f"{env}: plain PyTorch reference, one run", plain, "frames/s"))
         for members, frames_per_s in per_member.items():
             summed = members * frames_per_s
             results += [
                 Measurement("population", f"{env} N={members}: frames/s per member", frames_per_s, "frames/s"),
                 Measurement("population", f"{env} N={members}: summed", summed, "frames/s"),
                 Measurement("population", f"{env} N={members}: summed / N single runs", summed / per_member[1], "x"),
+                Measurement("population", f"{env} N={members}: summed / plain", summed / plain, "x"),
             ]
-            if plain is not None:
-                results.append(Measurement("population", f"{env} N={members}: summed / plain", summed / plain, "x"))
     return results
 
 
