@@ -41,6 +41,18 @@ def test_a_population_writes_one_single_run_directory_per_member(tmp_path, compo
     assert sorted(run.seed for run in runs) == [4, 5, 6] and {run.method for run in runs} == {"dqn+gaussian"}
 
 
+def test_a_gymnasium_env_trains_as_a_population_each_member_evaluated_in_its_own_copies(tmp_path, compose_config):
+    overrides = ("env=lunarlander", "population=2", "env.num_envs=2", "train.max_frames=256", "eval.every_frames=128", "eval.episodes=2")
+    train(compose_config(*overrides, "eval.final_episodes=2", "algo.learning_starts=64", "dynamics.learning_starts=64", *SMALL), tmp_path)
+    evaluations = {}
+    for seed in (0, 1):
+        summary = json.loads((tmp_path / f"seed{seed}" / SUMMARY).read_text())
+        assert summary["env"] == "LunarLander-v3" and summary["frames"] == 256 and summary["q_updates"] > 0
+        with (tmp_path / f"seed{seed}" / table_file("evaluations")).open() as handle:
+            evaluations[seed] = [float(row["eval_return_mean"]) for row in csv.DictReader(handle)]
+    assert len(evaluations[0]) == 3 and evaluations[0] != evaluations[1]  # two periodic and the final, each member's own
+
+
 def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp_path, compose_config):
     cfg = compose_config("population=2", "env.num_envs=2", "eval.episodes=2", "eval.every_frames=128", *SMALL)
     train(cfg, tmp_path)
@@ -98,7 +110,6 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
         (("population=0",), "population=0: expected a positive integer"),
         (("population=2", "exploration=rnd"), "exploration=rnd trains one agent per process; use population=1"),
         (("population=2", "exploration=noisy"), "exploration=noisy trains one agent per process; use population=1"),
-        (("population=2", "env=lunarlander"), "LunarLander-v3 has no torch-batched implementation"),
         (("population=2", "buffer=prioritized"), "use buffer=uniform or population=1"),
         (("population=2", "algo=reinforce"), "only algo=dqn trains populations"),
     ],

@@ -28,7 +28,7 @@ def test_seeds_are_grouped_in_runs_of_consecutive_seeds_whatever_order_the_sweep
 
 @pytest.mark.parametrize(
     ("overrides", "together"),
-    [(("exploration=gaussian",), True), (("exploration=egreedy",), True), (("exploration=rnd",), False), (("env=lunarlander",), False)],
+    [(("exploration=gaussian",), True), (("exploration=egreedy",), True), (("exploration=rnd",), False), (("buffer=prioritized",), False)],
 )
 def test_a_config_trains_together_when_its_population_passes_the_checks(overrides, together, compose_config):
     assert trains_together(compose_config(*overrides, "population=3")) is together

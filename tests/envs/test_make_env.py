@@ -6,9 +6,10 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.data import Categorical, Composite, OneHot
+from torchrl.envs.utils import RandomPolicy
 
 from torchrl_mbe import SUPPORTED_ENVS, make_env
-from torchrl_mbe.envs import MountainCarDynamics
+from torchrl_mbe.envs import MountainCarDynamics, first_episodes, play_first_episodes
 
 
 @pytest.mark.parametrize("name", list(SUPPORTED_ENVS))
@@ -51,3 +52,15 @@ def test_oracle_dynamics_equals_gymnasium_mountaincar_step(spec):
         env.state = (float(state[0]), float(state[1]))
         expected.append(env.step(action)[0])
     torch.testing.assert_close(predicted.float(), torch.from_numpy(np.stack(expected)), atol=1e-6, rtol=0)
+
+
+def test_a_gymnasium_batch_shape_is_a_grid_of_independent_copies_each_playing_its_own_first_episode():
+    env = make_env("cartpole", num_envs=(2, 3), backend="gym", seed=0)  # a gymnasium-backed population's (num_envs, M)
+    rollout = play_first_episodes(env, RandomPolicy(env.action_spec))
+    assert env.batch_size == (2, 3) and rollout.shape[:2] == (2, 3)
+    first_observations = rollout["observation"][..., 0, :].reshape(6, -1)
+    assert len({tuple(row.tolist()) for row in first_observations}) == 6  # every copy seeded apart
+    episodes = first_episodes(rollout.reshape(6, -1))
+    ends = rollout["next", "done"].reshape(6, -1).int().argmax(-1)
+    assert [episode.length for episode in episodes] == (ends + 1).tolist()  # each copy's own first done, whatever the others do
+    assert len(set(ends.tolist())) > 1  # so copies that finished first kept stepping into new episodes, and were ignored

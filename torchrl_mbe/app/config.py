@@ -255,19 +255,16 @@ def _check_together(config: Config) -> None:
         with_oracle = ", ".join(alias for alias, task in TASKS.items() if task.oracle is not None)
         raise ConfigError(f"dynamics=oracle: {config.env.name} has no oracle dynamics (those that have: {with_oracle}); use dynamics=mlp.")
     if config.population > 1:
-        _check_population(config, env_id)
+        _check_population(config)
 
 
-def _check_population(config: Config, env_id: str) -> None:
-    """What a population (``population > 1``) trains with: DQN, a member-batched explorer and env, uniform replay."""
+def _check_population(config: Config) -> None:
+    """What a population (``population > 1``) trains with: DQN, a member-batched explorer, uniform replay."""
     refusal = f"population={config.population}"
     if not isinstance(config.algo, DQNConfig):
         raise ConfigError(f"{refusal}: only algo=dqn trains populations; use population=1 for algo={config.algo.name}.")
     if not explorer_of(config.exploration).trains_in_populations:
         raise ConfigError(f"{refusal}: exploration={config.exploration.name} trains one agent per process; use population=1.")
-    with_torch = sorted(name for name, task in TASKS.items() if task.torch_env is not None)
-    if all(task.env_id != env_id or task.torch_env is None for task in TASKS.values()):
-        raise ConfigError(f"{refusal}: {env_id} has no torch-batched implementation (populations run on {', '.join(with_torch)}); use population=1.")
     if config.buffer.name != "uniform":
         raise ConfigError(f"{refusal}: buffer={config.buffer.name} keeps one priority tree for all members; use buffer=uniform or population=1.")
     if is_planning(config) and config.exploration.model_error_threshold is not None:

@@ -31,7 +31,7 @@ from tqdm.auto import tqdm
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.rollout import EnvState
-from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, reached_goal, resolve_env_id, task_of
+from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, play_first_episodes, reached_goal, resolve_env_id, task_of
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
@@ -415,7 +415,7 @@ def evaluate_members(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> 
 
 def _greedy_rollout(actor: TensorDictModuleBase, env: EnvBase) -> TensorDictBase:
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        return env.rollout(max_steps=100_000, policy=actor, break_when_any_done=False, break_when_all_done=True)
+        return play_first_episodes(env, actor)
 
 
 def _episode_results(rollout: TensorDictBase, env_id: str) -> dict:

@@ -9,7 +9,7 @@ from __future__ import annotations
 from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv, acrobot_step
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv, cartpole_step
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
-from torchrl_mbe.envs.episodes import Episode, finished_episodes, first_episodes, reached_goal
+from torchrl_mbe.envs.episodes import Episode, finished_episodes, first_episodes, play_first_episodes, reached_goal
 from torchrl_mbe.envs.make import make_env
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics, mountaincar_step
 from torchrl_mbe.envs.registry import SUPPORTED_ENVS, TASKS, EnvBounds, Task, resolve_env_id, task_of
@@ -32,6 +32,7 @@ __all__ = [
     "first_episodes",
     "make_env",
     "mountaincar_step",
+    "play_first_episodes",
     "reached_goal",
     "resolve_env_id",
     "task_of",

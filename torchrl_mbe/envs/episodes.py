@@ -5,10 +5,12 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
+from torchrl.envs import EnvBase, SerialEnv
 
 from torchrl_mbe.envs.registry import task_of
 
-__all__ = ["Episode", "finished_episodes", "first_episodes", "reached_goal"]
+__all__ = ["Episode", "finished_episodes", "first_episodes", "play_first_episodes", "reached_goal"]
 
 @dataclass(frozen=True)
 class Episode:
@@ -57,9 +59,9 @@ def finished_episodes(batch: TensorDictBase) -> list[Episode]:
 def first_episodes(rollout: TensorDictBase) -> list[Episode]:
     """The first episode of every env of a batched rollout of shape ``(envs, time)`` (or ``(time,)``).
 
-    Meant for ``env.rollout(..., break_when_any_done=False, break_when_all_done=True)``,
-    which steps each env until its first episode ends and then repeats that env's
-    last step until every env is done (so later rows are copies, not new episodes).
+    Meant for :func:`play_first_episodes` (or ``env.rollout(..., break_when_any_done=False,
+    break_when_all_done=True)``): whatever follows an env's first episode (copies of its
+    last step, or a new episode) is ignored.
 
     Examples:
         >>> import torch
@@ -77,6 +79,36 @@ def first_episodes(rollout: TensorDictBase) -> list[Episode]:
         raise ValueError("every env of the rollout must finish an episode (use break_when_all_done=True).")
     end = done.int().argmax(-1)  # the first done step of each env
     return _episodes_ending_at(rollout["next"][torch.arange(rollout.shape[0]), end])
+
+
+def play_first_episodes(env: EnvBase, policy: TensorDictModuleBase, max_steps: int = 100_000) -> TensorDictBase:
+    """A rollout of ``policy`` in ``env``, shape ``(*env.batch_size, time)``, long enough for every copy to finish its first episode.
+
+    Where the env can pause a copy (``env.rollout(break_when_all_done=True)``'s partial
+    steps), finished copies wait. A nested ``SerialEnv`` (:func:`~torchrl_mbe.make_env`'s
+    gymnasium ``(num_envs, M)`` batch) steps whole workers only, so there every copy
+    keeps stepping, into new episodes, until the last first episode ends; both read
+    the same through :func:`first_episodes`.
+
+    Examples:
+        >>> from torchrl.envs.utils import RandomPolicy
+        >>> from torchrl_mbe.envs import first_episodes, make_env, play_first_episodes
+        >>> env = make_env("cartpole", num_envs=(2, 3), backend="gym", seed=0)
+        >>> rollout = play_first_episodes(env, RandomPolicy(env.action_spec))
+        >>> rollout.shape[:2], len(first_episodes(rollout.reshape(6, -1)))
+        (torch.Size([2, 3]), 6)
+    """
+    base_env = getattr(env, "base_env", env)
+    if not (isinstance(base_env, SerialEnv) and base_env.batch_dims > 1):
+        return env.rollout(max_steps=max_steps, policy=policy, break_when_any_done=False, break_when_all_done=True)
+    steps, tensordict = [], env.reset()
+    finished = torch.zeros(env.batch_size, dtype=torch.bool, device=env.device)
+    while not finished.all() and len(steps) < max_steps:
+        tensordict, next_tensordict = env.step_and_maybe_reset(policy(tensordict))
+        steps.append(tensordict)
+        finished |= tensordict["next", "done"].reshape(env.batch_size)
+        tensordict = next_tensordict
+    return torch.stack(steps, dim=env.batch_dims)
 
 
 def _episodes_ending_at(last_steps: TensorDictBase) -> list[Episode]:

@@ -6,7 +6,7 @@ from functools import partial
 from typing import Any, Literal
 
 import torch
-from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
 
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 
@@ -31,7 +31,8 @@ def make_env(
     Backends:
 
     * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a ``SerialEnv`` of them
-      (batch size ``(num_envs,)``). Not a ``ParallelEnv``: a classic-control step
+      (batch size ``(num_envs,)``; a shape ``(num_envs, M)`` nests a ``SerialEnv``
+      of ``M`` in each of ``num_envs``). Not a ``ParallelEnv``: a classic-control step
       costs microseconds, far less than the inter-process traffic, so worker
       processes do not pay off (and this project targets 2-core machines).
     * ``"torch"``: the copies step together as tensor operations (the
@@ -56,8 +57,8 @@ def make_env(
         name (str): a short name of :data:`~torchrl_mbe.envs.registry.TASKS` or a gymnasium id.
 
     Keyword Args:
-        num_envs (int or tuple of int): number of environment copies, or the batch
-            shape of a torch backend's copies (a population's ``(num_envs, M)``). Defaults to 1.
+        num_envs (int or tuple of int): number of environment copies, or their batch
+            shape (a population's ``(num_envs, M)``). Defaults to 1.
         backend (str, optional): ``"gym"`` or ``"torch"``; see above.
         seed (int, optional): seeds the environment (copies get distinct seeds).
         device (torch.device): where the env's tensors live. Defaults to CPU.
@@ -73,6 +74,8 @@ def make_env(
         ('BatchedMountainCarEnv', torch.Size([2]))
         >>> make_env("deepsea", num_envs=16, seed=0, size=20).observation_spec["observation"].shape
         torch.Size([16, 400])
+        >>> make_env("lunarlander", num_envs=(2, 3), seed=0).rollout(5, break_when_any_done=False).shape
+        torch.Size([2, 3, 5])
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...
@@ -87,8 +90,6 @@ def make_env(
     gymnasium = task is None or task.gymnasium
     if backend is None:
         backend = "torch" if torch_env is not None and (math.prod(batch_shape) > 1 or not gymnasium) else "gym"
-    if backend == "gym" and len(batch_shape) > 1:
-        raise ValueError(f"num_envs={num_envs}: only a torch backend takes a batch shape; {env_id} runs on gymnasium here.")
     if backend == "torch":
         if torch_env is None:
             with_torch = sorted(t.env_id for t in TASKS.values() if t.torch_env is not None)
@@ -98,13 +99,21 @@ def make_env(
         raise ValueError(f"{env_id} has no gymnasium version; it runs with backend='torch' only.")
     elif backend == "gym" and env_kwargs:
         raise ValueError(f"Keyword arguments {sorted(env_kwargs)} are for a torch implementation; backend='gym' takes none.")
-    elif backend == "gym" and num_envs == 1:
-        base_env = GymEnv(env_id, device=device)
     elif backend == "gym":
-        base_env = SerialEnv(num_envs, partial(GymEnv, env_id, device=device))
+        base_env = _gym_env(env_id, batch_shape, device)
     else:
         raise ValueError(f"backend must be 'gym' or 'torch', got {backend!r}.")
     env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str) -> EnvBase:
+    """``GymEnv`` copies in nested ``SerialEnv``\ s, one level per dimension of ``batch_shape`` (one ``GymEnv`` for ``(1,)``)."""
+    if batch_shape == (1,):
+        return GymEnv(env_id, device=device)
+    make = partial(GymEnv, env_id, device=device)
+    for size in reversed(batch_shape):
+        make = partial(SerialEnv, size, make)
+    return make()
