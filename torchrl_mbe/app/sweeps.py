@@ -24,8 +24,9 @@ def group_seeds(job_overrides: Sequence[Sequence[str]], can_group: Callable[[lis
     Jobs that set every override alike but ``seed=<int>`` form a group; each run of
     consecutive seeds in it (``0,1,2`` of ``seed=0,1,2,5``) becomes one job
     ``seed=<first> population=<n>`` where ``can_group`` accepts those overrides (it
-    says whether the config trains in populations: RND and NoisyNet do not). Everything else stays as it was: a lone seed, a job without a ``seed=``
-    override, one that sets ``population`` itself, a seed listed twice, a population
+    says whether the config trains in populations: RND and NoisyNet do not).
+    Everything else stays as it was: a lone seed, a job without a ``seed=`` override,
+    one that sets ``population`` itself, a seed listed twice, a population
     ``can_group`` refuses. A group's jobs take the place of its first job.
 
     Examples:
