@@ -142,3 +142,66 @@ def test_non_discrete_action_spec_is_rejected():
 
     with pytest.raises(TypeError, match="discrete action spec"):
         DynamicsModel(2, Bounded(-1, 1, (1,)))
+
+
+def chain_transitions(num_cells: int, action: int) -> TensorDict:
+    """One-hot cells of a chain, each stepping one cell right (wrapping) under ``action`` of 2."""
+    cells = torch.eye(num_cells)
+    return TensorDict(
+        {"observation": cells, "action": torch.full((num_cells,), action), ("next", "observation"): cells.roll(1, 0)},
+        [num_cells],
+    )
+
+
+def distance_to_nearest_cell(prediction: torch.Tensor) -> torch.Tensor:
+    return torch.cdist(prediction, torch.eye(prediction.shape[-1])).min(-1).values
+
+
+@pytest.mark.parametrize("num_members", [None, 3], ids=["single", "population"])
+def test_a_randomized_prior_stays_frozen_and_out_of_the_optimizer(num_members):
+    from torchrl_mbe.app.optim import adam
+
+    dynamics = DynamicsModel(6, Categorical(2), (16,), num_members=num_members, prior_scale=1.0)
+    optimizer = adam(dynamics.parameters(), 1e-2)
+    trained = {id(parameter) for parameter in optimizer.param_groups[0]["params"]}
+    assert trained == {id(parameter) for parameter in dynamics.net.parameters()}
+    prior = [parameter.clone() for parameter in dynamics.prior.parameters()]
+    data = chain_transitions(6, action=0)
+    if num_members is not None:
+        data = data.unsqueeze(1).expand(6, num_members).clone()
+    loss = DynamicsLoss(dynamics)
+    for _ in range(20):
+        optimizer.zero_grad()
+        loss(data)["loss_dynamics"].sum().backward()
+        optimizer.step()
+    for before, after in zip(prior, dynamics.prior.parameters()):
+        torch.testing.assert_close(after, before)
+    restored = DynamicsModel(6, Categorical(2), (16,), num_members=num_members, prior_scale=1.0)
+    restored.load_state_dict(dynamics.state_dict())  # the prior travels with a checkpoint (a resumed run predicts alike)
+    with torch.no_grad():
+        torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
+
+
+def test_a_randomized_prior_sends_untried_actions_off_the_visited_states():
+    """Trained on action 0 only, the plain model predicts a visited cell for action 1; with a prior, it does not."""
+    distances = {}
+    for prior_scale in (0.0, 10.0):
+        torch.manual_seed(0)
+        dynamics = DynamicsModel(6, Categorical(2), (64, 64), prior_scale=prior_scale)
+        loss = DynamicsLoss(dynamics)
+        optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=3e-3)
+        tried, untried = chain_transitions(6, action=0), chain_transitions(6, action=1)
+        for _ in range(500):
+            optimizer.zero_grad()
+            loss(tried)["loss_dynamics"].backward()
+            optimizer.step()
+        with torch.no_grad():
+            torch.testing.assert_close(dynamics(tried.clone())["predicted_observation"], tried["next", "observation"], atol=0.05, rtol=0)
+            distances[prior_scale] = distance_to_nearest_cell(dynamics(untried.clone())["predicted_observation"])
+    assert distances[0.0].max() < 0.7  # an untried action looks like a move to a known cell (cells are 1.41 apart)
+    assert distances[10.0].min() > 1.0  # with the prior, it lands where no visited state is
+
+
+def test_a_negative_prior_scale_is_rejected():
+    with pytest.raises(ValueError, match="prior_scale must be >= 0"):
+        DynamicsModel(2, OneHot(3), prior_scale=-1.0)

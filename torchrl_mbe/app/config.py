@@ -114,6 +114,7 @@ class DynamicsConfig:
     learning_starts: int = setting(256, NON_NEGATIVE_INT)  # frames before the first update (inputs normalized then)
     updates_per_frame: float = setting(0.25, NON_NEGATIVE)
     max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())
+    prior_scale: float = setting(0.0, NON_NEGATIVE)  # a frozen random network's weight in each prediction (0: none)
 
 
 @dataclass

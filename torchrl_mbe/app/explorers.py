@@ -342,7 +342,12 @@ class PlanningExplorer(EGreedyExplorer):
             dynamics = task_of(resolve_env_id(cfg.env.name)).oracle(context.action_spec, **context.env_options)
         else:
             dynamics = DynamicsModel(
-                context.observation_size, context.action_spec, cfg.dynamics.num_cells, num_members=context.num_members, device=context.device
+                context.observation_size,
+                context.action_spec,
+                cfg.dynamics.num_cells,
+                num_members=context.num_members,
+                prior_scale=cfg.dynamics.prior_scale,
+                device=context.device,
             )
         novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)

@@ -14,13 +14,14 @@ log = logging.getLogger(__name__)
 
 
 def adam(parameters, lr: float) -> torch.optim.Adam:
-    """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA).
+    """Adam with its fused kernel (one kernel for every parameter, on CPU and CUDA), over the trainable ``parameters``.
 
-    The same update as the default per-parameter loop (up to floating-point
+    Parameters that do not require a gradient (a frozen randomized prior) are
+    left out. The same update as the default per-parameter loop (up to floating-point
     rounding, so a seed's trajectory differs), in one kernel call instead of a
     few per parameter.
     """
-    return torch.optim.Adam(parameters, lr=lr, fused=True)
+    return torch.optim.Adam([parameter for parameter in parameters if parameter.requires_grad], lr=lr, fused=True)
 
 
 class GradientStep:

@@ -109,6 +109,13 @@ class DynamicsModel(TensorDictModuleBase):
         num_members (int, optional): a population of ``M`` independent models
             (one TorchRL ``MultiAgentMLP``, statistics of shape ``(M, F)``) reading
             ``[*B, M, F]`` observations; ``None`` (the default) is one model.
+        prior_scale (float): weight of a *randomized prior* (Osband et al., 2018): a
+            second network of the same shape, random and frozen, whose output is
+            added to the trained network's. Where the model has trained, the
+            network has learned to cancel it; where it has not, predictions carry
+            the prior's noise and land off the visited states, so a novelty
+            planner scores untried (state, action) pairs as novel instead of
+            as "stay where you are". ``0`` (the default) builds no prior.
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -136,6 +143,7 @@ class DynamicsModel(TensorDictModuleBase):
         action_key: NestedKey = "action",
         out_key: NestedKey = "predicted_observation",
         num_members: int | None = None,
+        prior_scale: float = 0.0,
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
@@ -144,12 +152,17 @@ class DynamicsModel(TensorDictModuleBase):
             raise ValueError(
                 f"observation_size and num_cells must be positive, got {observation_size} and {list(num_cells)}."
             )
+        if prior_scale < 0:
+            raise ValueError(f"prior_scale must be >= 0 (0: no prior), got {prior_scale}.")
         self.in_keys = [observation_key, action_key]
         self.out_keys = [out_key]
         self.action_spec = discrete_action_spec(action_spec, action_key)
         self.observation_size = observation_size
         self.num_members = num_members
-        self.net = self._make_net(observation_size + num_discrete_actions(self.action_spec), list(num_cells), activation_class, device)
+        in_features = observation_size + num_discrete_actions(self.action_spec)
+        self.net = self._make_net(in_features, list(num_cells), activation_class, device)
+        self.prior_scale = prior_scale
+        self.prior = self._make_net(in_features, list(num_cells), activation_class, device).requires_grad_(False) if prior_scale > 0 else None
         statistics_shape = observation_size if num_members is None else (num_members, observation_size)
         self.observation_norm = Standardize(statistics_shape, device=device)
         self.delta_norm = Standardize(statistics_shape, device=device)
@@ -173,7 +186,10 @@ class DynamicsModel(TensorDictModuleBase):
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
         normalized = self.observation_norm(observation)
         inputs = torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
-        return observation + self.delta_norm.loc + self.delta_norm.scale * self.net(inputs)
+        output = self.net(inputs)
+        if self.prior is not None:
+            output = output + self.prior_scale * self.prior(inputs)
+        return observation + self.delta_norm.loc + self.delta_norm.scale * output
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         observation_key, action_key = self.in_keys
