@@ -130,6 +130,9 @@ class DynamicsModel(TensorDictModuleBase):
         torch.Size([5, 2])
         >>> dynamics.normalization_fitted
         False
+        >>> optimistic = DynamicsModel(env.observation_spec, env.action_spec, prior_scale=10.0)  # a frozen random prior
+        >>> any(parameter.requires_grad for parameter in optimistic.prior.parameters())
+        False
     """
 
     def __init__(
