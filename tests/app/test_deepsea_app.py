@@ -25,7 +25,7 @@ def test_a_population_plans_with_the_oracle_one_grid_per_member(compose_default,
 
 
 def test_the_learned_preset_finds_the_treasure_on_every_member(compose_default, tmp_path, read_table):
-    # With prior_scale=0 member 2 (seed 2) never finds it within these 300 episodes (and 9 treasures in all, against 23).
+    # With prior_scale=0 the seed-2 member never finds it within these 300 episodes (and 9 treasures in all, against 23).
     cfg = compose_default("experiment=deepsea_learned", "env.size=6", "population=4", "train.episodes=300")
     assert cfg.dynamics.name == "mlp" and cfg.dynamics.prior_scale > 0 and cfg.collector.frames_per_batch == 6
     train(cfg, tmp_path)
