@@ -205,3 +205,24 @@ def test_a_randomized_prior_sends_untried_actions_off_the_visited_states():
 def test_a_negative_prior_scale_is_rejected():
     with pytest.raises(ValueError, match="prior_scale must be >= 0"):
         DynamicsModel(2, OneHot(3), prior_scale=-1.0)
+
+
+def test_raw_units_keep_identity_statistics_and_learn_one_hot_transitions():
+    """normalize=False: nothing is fitted (not by the loss, not by fit_normalization), and errors are raw."""
+    torch.manual_seed(0)
+    dynamics = DynamicsModel(6, Categorical(2), (64,), normalize=False)
+    loss = DynamicsLoss(dynamics)
+    optimizer = torch.optim.Adam(dynamics.parameters(), lr=3e-3)
+    data = chain_transitions(6, action=0)
+    dynamics.fit_normalization(data)
+    for _ in range(300):
+        optimizer.zero_grad()
+        losses = loss(data)
+        losses["loss_dynamics"].backward()
+        optimizer.step()
+    for statistics in (dynamics.observation_norm, dynamics.delta_norm):
+        torch.testing.assert_close(statistics.loc, torch.zeros(6))
+        torch.testing.assert_close(statistics.scale, torch.ones(6))
+    torch.testing.assert_close(losses["loss_dynamics"].detach(), losses["mse_dynamics"])
+    with torch.no_grad():
+        torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)

@@ -347,6 +347,7 @@ class PlanningExplorer(EGreedyExplorer):
                 cfg.dynamics.num_cells,
                 num_members=context.num_members,
                 prior_scale=cfg.dynamics.prior_scale,
+                normalize=cfg.dynamics.normalize,
                 device=context.device,
             )
         novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)

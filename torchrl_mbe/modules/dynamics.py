@@ -116,6 +116,10 @@ class DynamicsModel(TensorDictModuleBase):
             the prior's noise and land off the visited states, so a novelty
             planner scores untried (state, action) pairs as novel instead of
             as "stay where you are". ``0`` (the default) builds no prior.
+        normalize (bool): standardize inputs and deltas (the default). ``False``
+            keeps raw units (statistics stay the identity and :meth:`fit_normalization`
+            does nothing), for one-hot observations such as DeepSea's grid, where a
+            rarely visited cell's tiny spread would scale its entry up a hundredfold.
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -147,6 +151,7 @@ class DynamicsModel(TensorDictModuleBase):
         out_key: NestedKey = "predicted_observation",
         num_members: int | None = None,
         prior_scale: float = 0.0,
+        normalize: bool = True,
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
@@ -169,7 +174,8 @@ class DynamicsModel(TensorDictModuleBase):
         statistics_shape = observation_size if num_members is None else (num_members, observation_size)
         self.observation_norm = Standardize(statistics_shape, device=device)
         self.delta_norm = Standardize(statistics_shape, device=device)
-        self.normalization_fitted = False
+        self.normalize = normalize
+        self.normalization_fitted = not normalize  # raw units need no fit
 
     def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device) -> nn.Module:
         """The MLP (Glorot-uniform weights, zero biases), or the members' ``MultiAgentMLP``."""
@@ -219,6 +225,8 @@ class DynamicsModel(TensorDictModuleBase):
             next_observation_key (NestedKey): where the next observation is.
             min_scale (float): dimensions whose standard deviation is at most this are left unscaled.
         """
+        if not self.normalize:
+            return
         if not isinstance(data, TensorDictBase):
             data = data[: len(data)]
         observation = data.get(self.in_keys[0])
