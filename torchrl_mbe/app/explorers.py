@@ -436,6 +436,7 @@ class KernelExplorer(PlanningExplorer):
 class DiagonalExploration(PlanningExploration):
     name: str = "diagonal"  # a Gaussian without correlations
     window: Optional[int] = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())  # null: every visited state
+    min_variance: float = setting(1e-8, POSITIVE)  # each dimension's variance floor: predictions off it by less than its root look familiar
 
 
 class DiagonalExplorer(PlanningExplorer):
