@@ -1,6 +1,8 @@
 """DeepSea in the app: the planner's rule with the true dynamics (conf/experiment/deepsea_oracle.yaml) and with a learned model (deepsea_learned.yaml)."""
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from torchrl_mbe.app import train
@@ -24,14 +26,15 @@ def test_a_population_plans_with_the_oracle_one_grid_per_member(compose_default,
         assert any(float(row["return"]) > 0.5 for row in episodes)  # both members found the treasure
 
 
-def test_the_learned_preset_finds_the_treasure_on_every_member(compose_default, tmp_path, read_table):
-    # With prior_scale=0 the seed-2 member never finds it within these 300 episodes (and 9 treasures in all, against 23).
-    cfg = compose_default("experiment=deepsea_learned", "env.size=6", "population=4", "train.episodes=300")
-    assert cfg.dynamics.name == "mlp" and cfg.dynamics.prior_scale > 0 and cfg.collector.frames_per_batch == 6
+def test_the_learned_preset_solves_deepsea_10_on_every_member_within_400_episodes(compose_default, tmp_path):
+    # With the preset's earlier model (two standardized layers of 64, the default variance floor) seeds 0-4
+    # solved 3 of 5 within 1,500 episodes (docs/results.md, section 6); dithering needs 1,024 to find it once.
+    cfg = compose_default("experiment=deepsea_learned", "env.size=10", "population=3", "train.episodes=400", "eval.every_frames=1000")
+    assert cfg.dynamics.name == "mlp" and cfg.dynamics.prior_scale > 0 and not cfg.dynamics.normalize
     train(cfg, tmp_path)
-    for seed in range(4):
-        episodes = read_table(tmp_path / f"seed{seed}", "episodes")
-        assert any(float(row["return"]) > 0.5 for row in episodes), f"member {seed} never reached the treasure"
+    for seed in range(3):
+        summary = json.loads((tmp_path / f"seed{seed}" / "summary.json").read_text())
+        assert summary["solved"], f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
 
 
 def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line_before_training(compose_default, tmp_path, monkeypatch):
