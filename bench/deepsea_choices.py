@@ -5,6 +5,7 @@ diagonal Gaussian over every visited cell, the rarest predicted next cell) with 
 ``DynamicsModel`` trained online, one update of 256 per step. At each step it also scores
 the two *true* next cells, and counts a step as *against the counts* when the model's
 choice leads to a cell visited at least twice as often, plus two, as the other one.
+The choice is :class:`~torchrl_mbe.NoveltyPlanner`'s, as in the app (ties broken at random).
 Prints those steps per block of episodes, and the episode of the first treasure.
 
     python bench/deepsea_choices.py --size 20 --min-variance 1e-8   # the density's default floor
@@ -18,9 +19,9 @@ import time
 
 import torch
 from tensordict import TensorDict
-from torchrl.data import OneHot
+from torchrl.data import LazyTensorStorage, OneHot, ReplayBuffer
 
-from torchrl_mbe import DynamicsLoss, DynamicsModel
+from torchrl_mbe import DynamicsLoss, DynamicsModel, NoveltyPlanner
 from torchrl_mbe.envs.deepsea import DeepSeaDynamics
 from torchrl_mbe.modules import DiagonalGaussianDensity
 
@@ -41,43 +42,36 @@ def parse_args() -> argparse.Namespace:
 def main() -> None:
     args = parse_args()
     torch.manual_seed(args.seed)
-    size, cells, actions = args.size, torch.eye(args.size**2), torch.eye(2).bool()
-    true_dynamics = DeepSeaDynamics(OneHot(2), size=size)
-    model = DynamicsModel(size**2, OneHot(2), args.num_cells, prior_scale=args.prior_scale, normalize=args.standardize)
+    size, spec = args.size, OneHot(2)
+    true_dynamics = DeepSeaDynamics(spec, size=size)
+    model = DynamicsModel(size**2, spec, args.num_cells, prior_scale=args.prior_scale, normalize=args.standardize)
+    planner = NoveltyPlanner(model, DiagonalGaussianDensity(window=None, min_variance=args.min_variance), spec)
     loss, optimizer = DynamicsLoss(model), torch.optim.Adam(model.net.parameters(), lr=1e-3)
-    density = DiagonalGaussianDensity(window=None, min_variance=args.min_variance)
+    replay_buffer = ReplayBuffer(storage=LazyTensorStorage(args.episodes * (size - 1)), batch_size=256)
     visits = torch.zeros(size**2)
-    capacity = args.episodes * (size - 1)
-    transitions = TensorDict(
-        {"observation": torch.zeros(capacity, size**2), "action": torch.zeros(capacity, 2, dtype=torch.bool), ("next", "observation"): torch.zeros(capacity, size**2)},
-        [capacity],
-    )
-    against_counts, steps, steps_taken, start = 0, 0, 0, time.perf_counter()
+    against_counts, steps, start = 0, 0, time.perf_counter()
     print(f"DeepSea-{size}, hidden {args.num_cells}, {'standardized' if args.standardize else 'raw units'}, "
           f"prior {args.prior_scale}, variance floor {args.min_variance:g}, seed {args.seed}")
     for episode in range(1, args.episodes + 1):
-        observation, rights = cells[0], 0
-        density.update(observation[None])
+        observation, rights = torch.eye(size**2)[0], 0
+        planner.novelty.update(observation[None])
         visits[0] += 1
         for _ in range(size - 1):
-            candidates = TensorDict({"observation": observation.expand(2, -1), "action": actions}, [2])
             with torch.no_grad():
-                predicted = model(candidates.clone())["predicted_observation"]
-            true_next = true_dynamics(candidates.clone())["predicted_observation"]
-            choice = int(density.score(predicted).argmax())
-            chosen_visits, other_visits = visits[true_next.argmax(-1)][[choice, 1 - choice]]
-            against_counts += int(chosen_visits >= 2 * other_visits + 2)
+                action, _ = planner.plan(observation)
+            choice = int(action.long().argmax())
+            true_cells = true_dynamics.step(observation.expand(2, -1), torch.arange(2)).argmax(-1)
+            against_counts += int(visits[true_cells[choice]] >= 2 * visits[true_cells[1 - choice]] + 2)
             steps += 1
-            next_observation = true_next[choice]
+            next_observation = true_dynamics.step(observation, torch.tensor(choice))
             rights += int(next_observation.argmax() % size > observation.argmax() % size)
-            transitions[steps_taken] = TensorDict({"observation": observation, "action": actions[choice], ("next", "observation"): next_observation})
-            steps_taken += 1
-            density.update(next_observation[None])
+            replay_buffer.add(TensorDict({"observation": observation, "action": action, ("next", "observation"): next_observation}))
+            planner.novelty.update(next_observation[None])
             visits[next_observation.argmax()] += 1
             observation = next_observation
-            if steps_taken >= 256:
+            if len(replay_buffer) >= 256:
                 optimizer.zero_grad()
-                loss(transitions[torch.randint(steps_taken, (256,))])["loss_dynamics"].backward()
+                loss(replay_buffer.sample())["loss_dynamics"].backward()
                 optimizer.step()
         if rights == size - 1:
             print(f"episode {episode}: the treasure ({time.perf_counter() - start:.0f} s)")
