@@ -36,11 +36,13 @@ def test_every_explorer_gives_the_loop_the_same_shape_and_its_state_survives_a_c
     assert rebuilt.explorer.state_dict().keys() == explorer.state_dict().keys()
 
 
-def test_the_diagonal_explorers_variance_floor_reaches_its_density_and_the_raw_model_its_planner(compose_config):
-    cfg = compose_config("exploration=diagonal", "exploration.min_variance=1e-3", "dynamics.normalize=false")
+def test_the_diagonal_explorers_variance_floor_and_addition_reach_its_density_and_the_raw_model_its_planner(compose_config):
+    cfg = compose_config(
+        "exploration=diagonal", "exploration.min_variance=1e-3", "exploration.added_variance=1e-2", "dynamics.normalize=false"
+    )
     agent = build_dqn_agent(cfg, make_env("mountaincar", num_envs=4, seed=0))
     planner = agent.explorer.policy.planner
-    assert planner.novelty.min_variance == 1e-3
+    assert planner.novelty.min_variance == 1e-3 and planner.novelty.added_variance == 1e-2
     assert planner.dynamics.normalize is False and planner.dynamics.normalization_fitted
 
 

@@ -134,6 +134,7 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(tm
         (["env=deepsea", "env.size=0"], r"env.size=0: expected a positive integer, or null"),
         (["dynamics.max_grad_norm=0"], "dynamics.max_grad_norm=0.0: expected a number > 0, or null"),
         (["exploration=diagonal", "exploration.min_variance=0"], "exploration.min_variance=0.0: expected a number > 0"),
+        (["exploration=diagonal", "exploration.added_variance=-1"], "exploration.added_variance=-1.0: expected a number >= 0"),
     ],
 )
 def test_bad_config_values_get_one_clear_error(tmp_path, overrides, message, compose_config):

@@ -322,6 +322,23 @@ def test_without_a_window_the_diagonal_gaussian_ranks_one_hot_cells_by_how_often
     assert density.score(cells).argsort(descending=True).tolist() == visits.argsort().tolist()
 
 
+def test_an_added_variance_keeps_the_visit_order_that_a_floor_ties_when_predictions_are_slightly_off():
+    cells = torch.eye(8)
+    visits = torch.tensor([2000, 1, 4, 16, 0, 0, 0, 0])  # cells 1-3 visited under 1% of the time
+    predictions = cells[[1, 2, 3]].clone()
+    predictions[2, 5:] = 0.1  # the prediction of the most visited of the three is off in never-visited cells
+    rankings = {}
+    for name, density in {
+        "floor": DiagonalGaussianDensity(window=None, min_variance=1e-2),
+        "added": DiagonalGaussianDensity(window=None, added_variance=1e-2),
+    }.items():
+        density.update(cells.repeat_interleave(visits, dim=0))
+        rankings[name] = density.score(predictions).argsort(descending=True).tolist()
+    assert rankings == {"floor": [2, 0, 1], "added": [0, 1, 2]}  # the floor ranks the error; the addition, the visits
+    with pytest.raises(ValueError, match="added_variance must be >= 0"):
+        DiagonalGaussianDensity(added_variance=-1.0)
+
+
 def test_the_diagonal_gaussian_over_every_state_compiles_with_fullgraph_and_scores_as_it_does_eagerly():
     density = DiagonalGaussianDensity(4, window=None, batch_shape=(3,))
     compiled_score = torch.compile(density.score, fullgraph=True, backend="aot_eager")

@@ -437,6 +437,7 @@ class DiagonalExploration(PlanningExploration):
     name: str = "diagonal"  # a Gaussian without correlations
     window: Optional[int] = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())  # null: every visited state
     min_variance: float = setting(1e-8, POSITIVE)  # each dimension's variance floor: predictions off it by less than its root look familiar
+    added_variance: float = setting(0.0, NON_NEGATIVE)  # added to each variance before the floor: keeps the order the floor ties
 
 
 class DiagonalExplorer(PlanningExplorer):

@@ -473,6 +473,19 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
     memory): on one-hot states (DeepSea's grid) the score then ranks cells by
     how often they were ever visited, as a visit count does.
 
+    ``added_variance`` is added to every variance before the floor (scikit-learn's
+    ``reg_covar``). The floor ties every dimension whose variance is below it; the
+    addition keeps their order. Counting one-hot cells over ``T`` visits, a cell
+    visited ``n`` times then scores about ``T / (n + added_variance * T)``, so a
+    prediction that lands on a cell visited once still outranks one that lands on
+    a cell visited five times, however large ``T`` grows, while an error ``e``
+    in a never-visited dimension adds at most ``e^2 / added_variance``.
+
+    Keyword Args:
+        added_variance (float): added to each dimension's variance. Defaults to ``0``.
+        **kwargs: those of :class:`RollingGaussianDensity` (``batch_shape``,
+            ``min_variance``, ``device``).
+
     Examples:
         >>> import torch
         >>> from torchrl_mbe.modules import DiagonalGaussianDensity
@@ -486,9 +499,25 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         >>> counts.update(cells[[0, 0, 0, 1, 0, 0, 1, 2]])
         >>> counts.score(cells).argsort(descending=True).tolist()  # the cell visited least first
         [2, 1, 0]
+        >>> cells = torch.eye(4)
+        >>> visits = cells[[0] * 200 + [1] * 4 + [2]]  # cells 1, 2 and 3 visited 4, 1 and 0 times
+        >>> floored = DiagonalGaussianDensity(window=None, min_variance=0.05)
+        >>> floored.update(visits)
+        >>> [round(score, 1) for score in floored.score(cells[1:]).tolist()]  # all three at the floor: close
+        [16.8, 17.1, 17.2]
+        >>> added = DiagonalGaussianDensity(window=None, added_variance=0.05)
+        >>> added.update(visits)
+        >>> [round(score, 1) for score in added.score(cells[1:]).tolist()]  # apart
+        [11.5, 13.6, 14.5]
     """
 
     counts_every_state = True
+
+    def __init__(self, num_features: int | None = None, window: int | None = 50, *, added_variance: float = 0.0, **kwargs) -> None:
+        if added_variance < 0:
+            raise ValueError(f"added_variance must be >= 0, got {added_variance}.")
+        super().__init__(num_features, window, **kwargs)
+        self.added_variance = float(added_variance)
 
     def _allocate(self, num_features: int) -> None:
         RollingWindowNovelty._allocate(self, num_features)
@@ -526,13 +555,14 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         """Mean and per-dimension spread from the running sums: no ``D x D`` covariance, no ``eigh``.
 
         The same density as the full Gaussian with its correlation matrix set to the
-        identity (whose eigenvalues are 1), the unbiased variance floored at ``min_variance``.
+        identity (whose eigenvalues are 1), the unbiased variance plus ``added_variance``,
+        floored at ``min_variance``.
         """
         count = self.num_seen if self.window is None else self.num_seen.clamp_max(self.window)
         count = count.to(torch.float64)
         loc = self.state_sum / count.clamp_min(1)
         variance = (self.state_square_sum - count * loc.square()) / (count - 1).clamp_min(1)
-        std = variance.clamp_min(self.min_variance).sqrt()
+        std = (variance + self.added_variance).clamp_min(self.min_variance).sqrt()
         self.loc.copy_(loc)
         self.inverse_std.copy_(1 / std)
         self._store_log_normalizer(2 * std.log().sum(-1))
