@@ -60,10 +60,11 @@ def main() -> None:
             with torch.no_grad():
                 action, _ = planner.plan(observation)
             choice = int(action.long().argmax())
-            true_cells = true_dynamics.step(observation.expand(2, -1), torch.arange(2)).argmax(-1)
+            true_next = true_dynamics.step(observation.expand(2, -1), torch.arange(2))  # after each action
+            true_cells = true_next.argmax(-1)
             against_counts += int(visits[true_cells[choice]] >= 2 * visits[true_cells[1 - choice]] + 2)
             steps += 1
-            next_observation = true_dynamics.step(observation, torch.tensor(choice))
+            next_observation = true_next[choice]
             rights += int(next_observation.argmax() % size > observation.argmax() % size)
             replay_buffer.add(TensorDict({"observation": observation, "action": action, ("next", "observation"): next_observation}))
             planner.novelty.update(next_observation[None])

@@ -16,12 +16,14 @@ variance floor (``min_variance``, no ``added_variance``).
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 import torch
 from omegaconf import OmegaConf
 
 from torchrl_mbe.app.dqn import build_dqn_agent
-from torchrl_mbe.app.run import make_run_env
+from torchrl_mbe.app.config import ConfigError
+from torchrl_mbe.app.run import load_safely, make_run_env
 from torchrl_mbe.envs.deepsea import DeepSeaDynamics
 from torchrl_mbe.modules import DiagonalGaussianDensity
 
@@ -31,7 +33,9 @@ def main() -> None:
     parser.add_argument("checkpoint", help="a checkpoint.pt of experiment=deepsea_learned (any population size)")
     parser.add_argument("--floor", type=float, help="also score the true next cells with the same counts and only this variance floor")
     args = parser.parse_args()
-    checkpoint = torch.load(args.checkpoint, weights_only=False, map_location="cpu")
+    if args.floor is not None and not args.floor > 0:
+        parser.error(f"--floor {args.floor:g}: expected a variance > 0")
+    checkpoint = read_deepsea_checkpoint(parser, Path(args.checkpoint))
     cfg = OmegaConf.create(checkpoint["config"])
     size, members = cfg.env.size, cfg.population
     agent = build_dqn_agent(cfg, make_run_env(cfg, num_envs=1, seed=cfg.seed))
@@ -51,10 +55,10 @@ def main() -> None:
     visits = planner.novelty.state_sum.reshape(members, size**2)
     next_cells = true_next.argmax(-1)[:, :, 0]  # (action, cell, member)
     errors = (predicted - true_next).norm(dim=-1)[:, :, 0]
+    rows = torch.arange(size**2) // size
     print(f"DeepSea-{size}, {checkpoint['frames']} frames a member, density {planner.novelty}")
     for member in range(members):
         next_visits = visits[member][next_cells[:, :, member]]  # (action, cell)
-        rows = torch.arange(size**2) // size
         compared = (visits[member] > 0) & (rows < size - 1) & (next_visits[0] != next_visits[1])
         rare = compared & (next_visits.amin(0) < 20)
         fewer = next_visits.argmin(0)
@@ -68,6 +72,20 @@ def main() -> None:
         print(f"  model error where both cells were visited: median {errors[:, :, member][seen].median():.3f}, "
               f"90th percentile {errors[:, :, member][seen].quantile(0.9):.3f} (cells are 1.41 apart)")
         print(f"  visits along the diagonal: {visits[member].reshape(size, size).diagonal().int().tolist()}")
+
+
+def read_deepsea_checkpoint(parser: argparse.ArgumentParser, path: Path) -> dict:
+    """The checkpoint of a DeepSea run whose planner scores with the diagonal density; anything else ends in one line."""
+    if not path.is_file():
+        parser.error(f"{path} does not exist (a run directory's checkpoint.pt is expected)")
+    try:
+        checkpoint = load_safely(path)
+    except ConfigError as error:
+        parser.error(str(error))
+    config = checkpoint.get("config", {})
+    if config.get("env", {}).get("name") != "deepsea" or config.get("exploration", {}).get("name") != "diagonal":
+        parser.error(f"{path} is not a checkpoint of env=deepsea with exploration=diagonal (experiment=deepsea_learned is)")
+    return checkpoint
 
 
 if __name__ == "__main__":

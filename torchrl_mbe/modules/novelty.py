@@ -519,6 +519,9 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         super().__init__(num_features, window, **kwargs)
         self.added_variance = float(added_variance)
 
+    def extra_repr(self) -> str:
+        return f"{super().extra_repr()}, min_variance={self.min_variance:g}, added_variance={self.added_variance:g}"
+
     def _allocate(self, num_features: int) -> None:
         RollingWindowNovelty._allocate(self, num_features)
         shape = (*self.batch_shape, num_features)
