@@ -70,13 +70,14 @@ def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp
     assert not torch.allclose(values[0], values[1])  # each member's own network
 
 
-@pytest.mark.parametrize("exploration", ["gaussian", "egreedy"])
+@pytest.mark.parametrize("exploration", ["gaussian", "egreedy", "noisy"])
 def test_changing_one_members_data_and_parameters_leaves_every_other_members_updates_unchanged(exploration, compose_config):
     clipping = ("algo.max_grad_norm=0.01", "dynamics.max_grad_norm=0.01")  # every member's gradient clipped
     cfg = compose_config("population=3", f"exploration={exploration}", "env.num_envs=4", *clipping, *SMALL)
     trained = [_learn_once(cfg, perturb_member=None), _learn_once(cfg, perturb_member=1)]
     for (name, untouched), (_, perturbed) in zip(*trained):
-        assert not torch.equal(untouched[1], perturbed[1]), name  # the perturbed member's changed
+        if "epsilon" not in name:  # NoisyNet's noise is drawn, not learned: the same draws in both
+            assert not torch.equal(untouched[1], perturbed[1]), name  # the perturbed member's changed
         for member in (0, 2):
             assert torch.equal(untouched[member], perturbed[member]), f"{name}, member {member}"
 
@@ -88,7 +89,7 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
     agent = build_dqn_agent(cfg, env)
     batch = next(iter(Collector(env, agent.explorer.policy, frames_per_batch=128 * 3, total_frames=-1)))
     if perturb_member is not None:
-        batch["observation"][:, perturb_member] += 0.5
+        batch["observation"][:, perturb_member] *= 1.5  # a scale, not only a shift: the input statistics' spread changes too
         batch["next", "observation"][:, perturb_member] -= 0.5
         with torch.no_grad():
             for parameter in agent.explorer.policy.parameters():
@@ -101,7 +102,17 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
     state = agent.explorer.policy.state_dict()
     target = agent.q_loss.target_value_network_params.flatten_keys(".")
     stacked = [*state.items(), *target.items()]  # the windows, (num_envs, M, ...), are filled while collecting: equal
-    return [(name, value) for name, value in stacked if isinstance(value, torch.Tensor) and value.ndim and value.shape[0] == 3]
+    return [(name, value) for name, value in stacked if isinstance(value, torch.Tensor) and not value.is_meta and value.ndim and value.shape[0] == 3]
+
+
+def test_a_noisy_populations_q_update_resamples_every_members_noise(compose_config):
+    cfg = compose_config("population=3", "exploration=noisy", "env.num_envs=2", *SMALL)
+    agent = build_dqn_agent(cfg, make_run_env(cfg, num_envs=2, seed=0))
+    noise = lambda: agent.actor.state_dict()["module.0.module.1.params.0.weight_epsilon"].clone()  # noqa: E731  [M, hidden, features]
+    before = noise()
+    agent.explorer.after_q_update(TensorDict())
+    after = noise()
+    assert all(not torch.equal(before[member], after[member]) for member in range(3))
 
 
 @pytest.mark.parametrize(
@@ -109,7 +120,6 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
     [
         (("population=0",), "population=0: expected a positive integer"),
         (("population=2", "exploration=rnd"), "exploration=rnd trains one agent per process; use population=1"),
-        (("population=2", "exploration=noisy"), "exploration=noisy trains one agent per process; use population=1"),
         (("population=2", "buffer=prioritized"), "use buffer=uniform or population=1"),
         (("population=2", "algo=reinforce"), "only algo=dqn trains populations"),
     ],

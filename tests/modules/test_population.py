@@ -8,6 +8,7 @@ import pytest
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import OneHot
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate
 
@@ -17,6 +18,8 @@ from torchrl_mbe.modules.population import (
     PopulationReplayBuffer,
     clip_grad_norm_per_member_,
     make_population_q_actor,
+    member_state_dict,
+    reset_members_noise,
 )
 
 SPEC = OneHot(3)
@@ -162,6 +165,55 @@ def test_each_member_is_glorot_initialized_on_its_own_slice():
     assert weight.abs().max() <= bound
     assert weight.abs().amax(dim=(1, 2)).min() > 0.8 * bound
     assert not torch.equal(weight[0], weight[1])
+
+
+def noisy_values(actor: QValueActor, states: torch.Tensor) -> torch.Tensor:
+    """The action values of ``states`` (``[B, M, F]``) with the actor's current noise sample."""
+    with set_exploration_type(ExplorationType.RANDOM):
+        return actor(TensorDict(observation=states, batch_size=states.shape[:-1]))["action_value"]
+
+
+def test_a_noisy_populations_reset_draws_new_noise_for_every_member_on_its_own():
+    actor = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, 4, noise_std=0.5)
+    states = torch.randn(8, 1, OBSERVATION_SIZE).expand(8, 4, OBSERVATION_SIZE)  # the same states for every member
+    before = noisy_values(actor, states)
+    actor.apply(reset_members_noise)
+    after = noisy_values(actor, states)
+    assert (before != after).any(0).all()  # every member's values moved
+    noise = actor.module[0].params["0", "weight_epsilon"]  # [M, hidden, features]
+    assert all(not torch.equal(noise[0], noise[member]) for member in (1, 2, 3))  # no member shares another's draw
+    with set_exploration_type(ExplorationType.DETERMINISTIC):  # the noise-free mean is untouched
+        mean = actor(TensorDict(observation=states, batch_size=[8, 4]))["action_value"]
+    actor.apply(reset_members_noise)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        assert torch.equal(actor(TensorDict(observation=states, batch_size=[8, 4]))["action_value"], mean)
+
+
+def test_a_noisy_members_state_loads_into_a_single_noisy_network_that_acts_as_the_member():
+    actor = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, 3, noise_std=0.5)
+    actor.apply(reset_members_noise)
+    single = QValueActor(make_per_action_mlp(OBSERVATION_SIZE, SPEC, NUM_CELLS, noise_std=0.5), spec=SPEC, in_keys=["observation"])
+    single.load_state_dict(member_state_dict(actor.state_dict(), 1))  # strict: exactly a single NoisyNet's keys
+    states = torch.randn(8, 3, OBSERVATION_SIZE)
+    torch.testing.assert_close(noisy_values(single, states[:, 1]), noisy_values(actor, states)[:, 1])
+
+
+def test_the_noisy_loss_sees_each_reset():
+    actor = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, 2, noise_std=0.5)
+    loss = PopulationDQNLoss(actor, delay_value=True, action_space=SPEC)
+    loss.deterministic_sampling_mode = ExplorationType.RANDOM  # as exploration=noisy learns: through its noise
+    loss.make_value_estimator(gamma=0.99)
+    flags = torch.zeros(8, 2, 1, dtype=torch.bool)
+    batch = TensorDict(
+        observation=torch.randn(8, 2, OBSERVATION_SIZE),
+        action=SPEC.rand((8, 2)),
+        next=TensorDict(observation=torch.randn(8, 2, OBSERVATION_SIZE), reward=torch.ones(8, 2, 1), done=flags, terminated=flags),
+        batch_size=[8, 2],
+    )
+    before = loss(batch.clone())["member_loss"]
+    actor.apply(reset_members_noise)
+    after = loss(batch.clone())["member_loss"]
+    assert (before != after).all()
 
 
 def gradients(num_members: int) -> list[torch.Tensor]:

@@ -263,7 +263,9 @@ def make_q_actor(
     with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.population.make_population_q_actor`).
     """
     if num_members is not None:
-        return make_population_q_actor(observation_size, action_spec, num_cells, num_members, input_norm=input_norm, device=device)
+        return make_population_q_actor(
+            observation_size, action_spec, num_cells, num_members, input_norm=input_norm, noise_std=noise_std, device=device
+        )
     network = make_per_action_mlp(observation_size, action_spec, num_cells, device=device, noise_std=noise_std)
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)

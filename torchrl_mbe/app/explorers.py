@@ -38,6 +38,7 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.modules.population import reset_members_noise
 from torchrl_mbe.objectives import DynamicsLoss
 from torchrl_mbe.rundir import is_int
 
@@ -246,19 +247,22 @@ class NoisyExplorer(Explorer):
     """``exploration=noisy``: the Q-network's own noise explores; it is resampled after every Q update."""
 
     schema = NoisyExploration
-    trains_in_populations = False  # TorchRL's NoisyLinear layers have no member dimension
+
+    def __init__(self, policy: TensorDictModuleBase, num_members: int | None = None) -> None:
+        super().__init__(policy)
+        self.reset_noise = reset_noise if num_members is None else reset_members_noise  # a population's noise is stacked [M, ...]
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
         context.q_loss.deterministic_sampling_mode = ExplorationType.RANDOM  # it learns through its noise, as it acts
-        return cls(context.actor)
+        return cls(context.actor, context.num_members)
 
     @classmethod
     def q_network_noise(cls, exploration: DictConfig) -> float | None:
         return exploration.std_init
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
-        self.policy.apply(reset_noise)
+        self.policy.apply(self.reset_noise)
         return {}
 
 

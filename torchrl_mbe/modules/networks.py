@@ -8,7 +8,19 @@ from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.modules import MLP, NoisyLinear
 
-__all__ = ["init_linear_layers", "make_per_action_mlp"]
+__all__ = ["init_linear_layers", "make_per_action_mlp", "noisy_layers"]
+
+
+def noisy_layers(noise_std: float | None) -> dict:
+    """The keyword arguments that make TorchRL's ``MLP`` (or ``MultiAgentMLP``) a NoisyNet at ``noise_std``; none for ``None``.
+
+    Examples:
+        >>> from torchrl.modules import MLP
+        >>> from torchrl_mbe.modules.networks import noisy_layers
+        >>> type(MLP(in_features=2, out_features=3, num_cells=[8], **noisy_layers(0.5))[0]).__name__
+        'NoisyLinear'
+    """
+    return {} if noise_std is None else {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": noise_std}}
 
 
 def init_linear_layers(
@@ -61,13 +73,12 @@ def make_per_action_mlp(
         >>> type(make_per_action_mlp(2, OneHot(3), [16], noise_std=0.5)[0]).__name__
         'NoisyLinear'
     """
-    noisy = {"layer_class": NoisyLinear, "layer_kwargs": {"std_init": noise_std}} if noise_std is not None else {}
     network = MLP(
         in_features=observation_size,
         out_features=action_spec.space.n,
         num_cells=list(num_cells),
         activation_class=activation_class,
         device=device,
-        **noisy,
+        **noisy_layers(noise_std),
     )
     return init_linear_layers(network, init_weight, init_bias)

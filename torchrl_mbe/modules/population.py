@@ -22,7 +22,10 @@ members that never exchange data, gradients or statistics:
 - :func:`clip_grad_norm_per_member_`: gradient clipping with one norm per member (a
   global norm would let one member's large gradient shrink every other's);
 - :class:`PopulationReplayBuffer`: a ring buffer ``[capacity, M]`` whose members draw
-  their own indices.
+  their own indices;
+- :func:`reset_members_noise`: a NoisyNet population's resampling, each member's
+  factorized noise drawn on its own (TorchRL's ``reset_noise`` reaches no member's
+  stacked noise buffers).
 
 TorchRL's fused Adam and target updaters (``HardUpdate``, ``SoftUpdate``) are
 elementwise, hence per member already.
@@ -38,7 +41,7 @@ from torchrl.data import TensorSpec
 from torchrl.modules import MultiAgentMLP, QValueActor
 from torchrl.objectives import DQNLoss
 
-from torchrl_mbe.modules.networks import init_linear_layers
+from torchrl_mbe.modules.networks import init_linear_layers, noisy_layers
 
 __all__ = [
     "PopulationDQNLoss",
@@ -47,6 +50,7 @@ __all__ = [
     "make_members_mlp",
     "make_population_q_actor",
     "member_state_dict",
+    "reset_members_noise",
 ]
 
 
@@ -57,6 +61,7 @@ def make_population_q_actor(
     num_members: int,
     *,
     input_norm: nn.Module | None = None,
+    noise_std: float | None = None,
     device: torch.device | str = "cpu",
 ) -> QValueActor:
     """A ``QValueActor`` over ``num_members`` independent Q-networks: ``[*B, M, F]`` observations to ``[*B, M, A]`` values.
@@ -75,6 +80,7 @@ def make_population_q_actor(
     Keyword Args:
         input_norm (nn.Module, optional): applied to the observations first (a
             :class:`~torchrl_mbe.modules.Standardize` of shape ``(M, F)``: one set of statistics per member).
+        noise_std (float, optional): NoisyNet members (see :func:`make_members_mlp`).
         device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
 
     Examples:
@@ -89,7 +95,7 @@ def make_population_q_actor(
         >>> actor.module[0].params["0", "weight"].shape  # [M, hidden, features]
         torch.Size([4, 16, 2])
     """
-    network = make_members_mlp(observation_size, action_spec.space.n, num_cells, num_members, device=device)
+    network = make_members_mlp(observation_size, action_spec.space.n, num_cells, num_members, noise_std=noise_std, device=device)
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
@@ -102,6 +108,7 @@ def make_members_mlp(
     num_members: int,
     *,
     activation_class: type[nn.Module] = nn.ReLU,
+    noise_std: float | None = None,
     device: torch.device | str | None = "cpu",
 ) -> MultiAgentMLP:
     """``num_members`` independent MLPs as one TorchRL ``MultiAgentMLP``: ``[*B, M, in_features]`` to ``[*B, M, out_features]``.
@@ -112,7 +119,10 @@ def make_members_mlp(
     slice is initialized as :func:`~torchrl_mbe.modules.init_linear_layers`
     initializes a single MLP (Glorot-uniform weights, the paper's Keras
     initialization, and zero biases), layer by layer and member by member from
-    torch's global generator.
+    torch's global generator. With ``noise_std`` the layers are TorchRL's
+    ``NoisyLinear`` (each member a NoisyNet, its noise starting at that scale),
+    which keep their own initialization; resample their noise with
+    :func:`reset_members_noise`.
 
     Examples:
         >>> import torch
@@ -130,6 +140,7 @@ def make_members_mlp(
         num_cells=list(num_cells),
         activation_class=activation_class,
         device=device,
+        **noisy_layers(noise_std),
     )
     # get_stateful_net puts the stacked parameters themselves into a copy of one member's MLP
     # (MultiAgentNetBase's documented way to re-initialize them in place).
@@ -140,6 +151,45 @@ def make_members_mlp(
             _each_member(nn.init.zeros_),
         )
     return network
+
+
+def reset_members_noise(module: nn.Module) -> None:
+    """Resamples the factorized noise of every ``NoisyLinear`` layer of a ``MultiAgentMLP``, each member's on its own.
+
+    ``NoisyLinear.reset_noise`` on the stacked network would reach only its
+    parameter-less template; this draws, for each member and layer, the
+    ``f(x) = sign(x) sqrt(|x|)`` noise of TorchRL's ``reset_noise`` (Fortunato et
+    al.'s factorized Gaussian) into the ``[M, ...]`` buffers in place, so the
+    losses that hold them see the new sample. Pass it to ``module.apply`` as
+    TorchRL's ``reset_noise``; modules other than a ``MultiAgentMLP`` are left alone.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.envs.utils import ExplorationType, set_exploration_type
+        >>> from torchrl_mbe.modules.population import make_members_mlp, reset_members_noise
+        >>> network = make_members_mlp(3, 2, [8], num_members=4, noise_std=0.5)
+        >>> with set_exploration_type(ExplorationType.RANDOM):
+        ...     before = network(torch.ones(4, 3))
+        ...     _ = network.apply(reset_members_noise)
+        ...     after = network(torch.ones(4, 3))
+        >>> bool((before != after).all(-1).all())  # every member's output moved
+        True
+    """
+    if not isinstance(module, MultiAgentMLP):
+        return
+    for layer in module.params.values():
+        if "weight_epsilon" not in layer.keys():
+            continue
+        members, out_features, in_features = layer["weight_epsilon"].shape
+        noise_in, noise_out = (_factorized_noise(members, size, layer["weight_epsilon"]) for size in (in_features, out_features))
+        layer["weight_epsilon"].copy_(noise_out[:, :, None] * noise_in[:, None, :])
+        layer["bias_epsilon"].copy_(noise_out)
+
+
+def _factorized_noise(members: int, size: int, like: torch.Tensor) -> torch.Tensor:
+    """``[members, size]`` draws of ``sign(x) sqrt(|x|)``, ``x`` standard normal (``NoisyLinear._scale_noise``, per member)."""
+    x = torch.randn(members, size, device=like.device, dtype=like.dtype)
+    return x.sign() * x.abs().sqrt()
 
 
 def _each_member(init: Callable[[torch.Tensor], torch.Tensor]) -> Callable[[torch.Tensor], torch.Tensor]:
@@ -384,4 +434,8 @@ def member_state_dict(population_state: dict[str, torch.Tensor], member: int) ->
         >>> torch.allclose(single(TensorDict(observation=states[:, 2], batch_size=[5]))["action_value"], values)
         True
     """
-    return {key.replace("params.", ""): value[member].clone() for key, value in population_state.items()}
+    return {
+        key.replace("params.", ""): value[member].clone()
+        for key, value in population_state.items()
+        if not value.is_meta  # a NoisyLinear template's buffers: MultiAgentMLP keeps them on the meta device
+    }
