@@ -38,12 +38,14 @@ def test_every_explorer_gives_the_loop_the_same_shape_and_its_state_survives_a_c
 
 def test_the_diagonal_explorers_variance_floor_and_addition_reach_its_density_and_the_raw_model_its_planner(compose_config):
     cfg = compose_config(
-        "exploration=diagonal", "exploration.min_variance=1e-3", "exploration.added_variance=1e-2", "dynamics.normalize=false"
+        "exploration=diagonal", "exploration.min_variance=1e-3", "exploration.added_variance=1e-2", "dynamics.normalize=false",
+        "dynamics.prior_scale=25", "dynamics.prior_num_cells=[32]",
     )
     agent = build_dqn_agent(cfg, make_env("mountaincar", num_envs=4, seed=0))
     planner = agent.explorer.policy.planner
     assert planner.novelty.min_variance == 1e-3 and planner.novelty.added_variance == 1e-2
     assert planner.dynamics.normalize is False and planner.dynamics.normalization_fitted
+    assert planner.dynamics.prior_scale == 25 and planner.dynamics.prior[0].out_features == 32
 
 
 def test_every_explorer_is_a_hydra_option_of_its_own_name(compose_config):

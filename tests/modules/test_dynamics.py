@@ -182,12 +182,13 @@ def test_a_randomized_prior_stays_frozen_and_out_of_the_optimizer(num_members):
         torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
 
 
-def test_a_randomized_prior_sends_untried_actions_off_the_visited_states():
-    """Trained on action 0 only, the plain model predicts a visited cell for action 1; with a prior, it does not."""
+@pytest.mark.parametrize(("prior_num_cells", "scale"), [(None, 10.0), ((32,), 25.0)], ids=["as-wide-as-the-model", "narrow"])
+def test_a_randomized_prior_sends_untried_actions_off_the_visited_states(prior_num_cells, scale):
+    """Trained on action 0 only, the plain model predicts a visited cell for action 1; with a prior, wide or narrow, it does not."""
     distances = {}
-    for prior_scale in (0.0, 10.0):
+    for prior_scale in (0.0, scale):
         torch.manual_seed(0)
-        dynamics = DynamicsModel(6, Categorical(2), (64, 64), prior_scale=prior_scale)
+        dynamics = DynamicsModel(6, Categorical(2), (64, 64), prior_scale=prior_scale, prior_num_cells=prior_num_cells)
         loss = DynamicsLoss(dynamics)
         optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=3e-3)
         tried, untried = chain_transitions(6, action=0), chain_transitions(6, action=1)
@@ -199,12 +200,23 @@ def test_a_randomized_prior_sends_untried_actions_off_the_visited_states():
             torch.testing.assert_close(dynamics(tried.clone())["predicted_observation"], tried["next", "observation"], atol=0.05, rtol=0)
             distances[prior_scale] = distance_to_nearest_cell(dynamics(untried.clone())["predicted_observation"])
     assert distances[0.0].max() < 0.7  # an untried action looks like a move to a known cell (cells are 1.41 apart)
-    assert distances[10.0].min() > 1.0  # with the prior, it lands where no visited state is
+    assert distances[scale].min() > 1.0  # with the prior, it lands where no visited state is
 
 
 def test_a_negative_prior_scale_is_rejected():
     with pytest.raises(ValueError, match="prior_scale must be >= 0"):
         DynamicsModel(2, OneHot(3), prior_scale=-1.0)
+
+
+@pytest.mark.parametrize("num_members", [None, 3], ids=["single", "population"])
+def test_the_prior_has_its_own_hidden_layers_when_given(num_members):
+    narrow = DynamicsModel(6, Categorical(2), (64,), num_members=num_members, prior_scale=1.0, prior_num_cells=(8, 4))
+    sizes = [parameter.shape[-2] for name, parameter in narrow.prior.named_parameters() if name.endswith("weight")]
+    assert sizes == [8, 4, 6]  # two hidden layers of its own, then the observation
+    default = DynamicsModel(6, Categorical(2), (64,), num_members=num_members, prior_scale=1.0)
+    assert [parameter.shape for parameter in default.prior.parameters()] == [parameter.shape for parameter in default.net.parameters()]
+    with pytest.raises(ValueError, match="prior_num_cells must be positive"):
+        DynamicsModel(6, Categorical(2), (64,), prior_scale=1.0, prior_num_cells=(0,))
 
 
 def test_raw_units_keep_identity_statistics_and_learn_one_hot_transitions():

@@ -115,6 +115,7 @@ class DynamicsConfig:
     updates_per_frame: float = setting(0.25, NON_NEGATIVE)
     max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())
     prior_scale: float = setting(0.0, NON_NEGATIVE)  # a frozen random network's weight in each prediction (0: none)
+    prior_num_cells: Optional[list[int]] = setting(None, LAYERS.or_none())  # the prior's hidden layers (null: num_cells)
     normalize: bool = True  # standardize inputs and deltas; false keeps raw units (one-hot observations)
 
 

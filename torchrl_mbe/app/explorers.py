@@ -351,6 +351,7 @@ class PlanningExplorer(EGreedyExplorer):
                 cfg.dynamics.num_cells,
                 num_members=context.num_members,
                 prior_scale=cfg.dynamics.prior_scale,
+                prior_num_cells=cfg.dynamics.prior_num_cells,
                 normalize=cfg.dynamics.normalize,
                 device=context.device,
             )

@@ -116,6 +116,12 @@ class DynamicsModel(TensorDictModuleBase):
             the prior's noise and land off the visited states, so a novelty
             planner scores untried (state, action) pairs as novel instead of
             as "stay where you are". ``0`` (the default) builds no prior.
+        prior_num_cells (sequence of int, optional): the prior's hidden layer sizes;
+            ``None`` (the default) is ``num_cells``. A narrow prior's outputs span few
+            directions, so the trained network cancels it on the pairs it has tried
+            with fewer of its own (on DeepSea's grid, where every tried pair is a
+            target of its own; docs/results.md, section 6). Its outputs are smaller
+            too (Glorot initialization): raise ``prior_scale`` to keep their size.
         normalize (bool): standardize inputs and deltas (the default). ``False``
             keeps raw units (statistics stay the identity and :meth:`fit_normalization`
             does nothing), for one-hot observations such as DeepSea's grid, where a
@@ -137,6 +143,9 @@ class DynamicsModel(TensorDictModuleBase):
         >>> optimistic = DynamicsModel(env.observation_spec, env.action_spec, prior_scale=10.0)  # a frozen random prior
         >>> any(parameter.requires_grad for parameter in optimistic.prior.parameters())
         False
+        >>> narrow = DynamicsModel(env.observation_spec, env.action_spec, prior_scale=25.0, prior_num_cells=[8])
+        >>> narrow.prior[0].out_features, narrow.net[0].out_features
+        (8, 24)
     """
 
     def __init__(
@@ -151,14 +160,16 @@ class DynamicsModel(TensorDictModuleBase):
         out_key: NestedKey = "predicted_observation",
         num_members: int | None = None,
         prior_scale: float = 0.0,
+        prior_num_cells: Sequence[int] | None = None,
         normalize: bool = True,
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
         observation_size = _observation_size(observation_size, observation_key)
-        if observation_size < 1 or any(int(cells) < 1 for cells in num_cells):
+        prior_num_cells = list(num_cells if prior_num_cells is None else prior_num_cells)
+        if observation_size < 1 or any(int(cells) < 1 for cells in [*num_cells, *prior_num_cells]):
             raise ValueError(
-                f"observation_size and num_cells must be positive, got {observation_size} and {list(num_cells)}."
+                f"observation_size, num_cells and prior_num_cells must be positive, got {observation_size}, {list(num_cells)} and {prior_num_cells}."
             )
         if prior_scale < 0:
             raise ValueError(f"prior_scale must be >= 0 (0: no prior), got {prior_scale}.")
@@ -170,7 +181,7 @@ class DynamicsModel(TensorDictModuleBase):
         in_features = observation_size + num_discrete_actions(self.action_spec)
         self.net = self._make_net(in_features, list(num_cells), activation_class, device)
         self.prior_scale = prior_scale
-        self.prior = self._make_net(in_features, list(num_cells), activation_class, device).requires_grad_(False) if prior_scale > 0 else None
+        self.prior = self._make_net(in_features, prior_num_cells, activation_class, device).requires_grad_(False) if prior_scale > 0 else None
         statistics_shape = observation_size if num_members is None else (num_members, observation_size)
         self.observation_norm = Standardize(statistics_shape, device=device)
         self.delta_norm = Standardize(statistics_shape, device=device)
