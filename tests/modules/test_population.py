@@ -167,9 +167,9 @@ def test_each_member_is_glorot_initialized_on_its_own_slice():
     assert not torch.equal(weight[0], weight[1])
 
 
-def noisy_values(actor: QValueActor, states: torch.Tensor) -> torch.Tensor:
-    """The action values of ``states`` (``[B, M, F]``) with the actor's current noise sample."""
-    with set_exploration_type(ExplorationType.RANDOM):
+def noisy_values(actor: QValueActor, states: torch.Tensor, mode: ExplorationType = ExplorationType.RANDOM) -> torch.Tensor:
+    """The action values of ``states`` (``[B, M, F]``): with the actor's current noise sample, or its noise-free mean (``DETERMINISTIC``)."""
+    with set_exploration_type(mode):
         return actor(TensorDict(observation=states, batch_size=states.shape[:-1]))["action_value"]
 
 
@@ -182,11 +182,9 @@ def test_a_noisy_populations_reset_draws_new_noise_for_every_member_on_its_own()
     assert (before != after).any(0).all()  # every member's values moved
     noise = actor.module[0].params["0", "weight_epsilon"]  # [M, hidden, features]
     assert all(not torch.equal(noise[0], noise[member]) for member in (1, 2, 3))  # no member shares another's draw
-    with set_exploration_type(ExplorationType.DETERMINISTIC):  # the noise-free mean is untouched
-        mean = actor(TensorDict(observation=states, batch_size=[8, 4]))["action_value"]
+    mean = noisy_values(actor, states, ExplorationType.DETERMINISTIC)
     actor.apply(reset_members_noise)
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        assert torch.equal(actor(TensorDict(observation=states, batch_size=[8, 4]))["action_value"], mean)
+    assert torch.equal(noisy_values(actor, states, ExplorationType.DETERMINISTIC), mean)  # the noise-free mean is untouched
 
 
 def test_a_noisy_members_state_loads_into_a_single_noisy_network_that_acts_as_the_member():
@@ -203,13 +201,7 @@ def test_the_noisy_loss_sees_each_reset():
     loss = PopulationDQNLoss(actor, delay_value=True, action_space=SPEC)
     loss.deterministic_sampling_mode = ExplorationType.RANDOM  # as exploration=noisy learns: through its noise
     loss.make_value_estimator(gamma=0.99)
-    flags = torch.zeros(8, 2, 1, dtype=torch.bool)
-    batch = TensorDict(
-        observation=torch.randn(8, 2, OBSERVATION_SIZE),
-        action=SPEC.rand((8, 2)),
-        next=TensorDict(observation=torch.randn(8, 2, OBSERVATION_SIZE), reward=torch.ones(8, 2, 1), done=flags, terminated=flags),
-        batch_size=[8, 2],
-    )
+    batch = transitions(8, 2)
     before = loss(batch.clone())["member_loss"]
     actor.apply(reset_members_noise)
     after = loss(batch.clone())["member_loss"]
