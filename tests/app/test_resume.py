@@ -80,6 +80,17 @@ def test_a_killed_and_resumed_run_ends_exactly_as_the_uninterrupted_one(tmp_path
     torch.testing.assert_close(again["weights"], uninterrupted["weights"], rtol=0, atol=0)  # bit for bit
 
 
+@pytest.mark.parametrize("exploration", ["egreedy", "rnd"])
+def test_a_run_whose_policy_draws_random_numbers_resumes_on_the_same_random_stream(exploration, tmp_path, compose_config):
+    # The collector checks its policy once when built; e-greedy's check draws from torch's generator.
+    overrides = (f"exploration={exploration}", "env.num_envs=2", "eval.final_episodes=0", "algo.num_cells=[16,16]")
+    train(compose_config(*overrides), tmp_path / "whole")
+    train(compose_config(*overrides, "train.max_frames=160"), tmp_path / "resumed")
+    train(compose_config(*overrides, "resume=true"), tmp_path / "resumed")
+    agents = [load_safely(tmp_path / run / CHECKPOINT)["agent"] for run in ("whole", "resumed")]
+    torch.testing.assert_close(agents[1], agents[0], rtol=0, atol=0)
+
+
 class Payload:
     """Pickles as a call that leaves a file behind: what a crafted checkpoint or shared policy could do."""
 

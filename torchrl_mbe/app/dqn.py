@@ -50,10 +50,11 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     check_replay_memory(cfg.buffer, env, 1, cfg.device)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
+    # Built before a resume restores torch's generator: checking the policy draws from it.
+    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
     run = open_run(cfg, run_dir, agent)
     keep_in_checkpoints(run, "replay_buffer", ReplayState(replay_buffer))
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef)
-    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
     keep_in_checkpoints(run, "transitions", transitions)  # the frames its n-step windows hold back
     keep_in_checkpoints(run, "collector", CollectorState(collector))  # the env and the step it goes on from
     batches = iter(collector)
