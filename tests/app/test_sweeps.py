@@ -28,7 +28,7 @@ def test_seeds_are_grouped_in_runs_of_consecutive_seeds_whatever_order_the_sweep
 
 @pytest.mark.parametrize(
     ("overrides", "together"),
-    [(("exploration=gaussian",), True), (("exploration=egreedy",), True), (("exploration=rnd",), False), (("buffer=prioritized",), False)],
+    [(("exploration=gaussian",), True), (("exploration=egreedy",), True), (("exploration=rnd",), True), (("buffer=prioritized",), False)],
 )
 def test_a_config_trains_together_when_its_population_passes_the_checks(overrides, together, compose_config):
     assert trains_together(compose_config(*overrides, "population=3")) is together
@@ -36,18 +36,19 @@ def test_a_config_trains_together_when_its_population_passes_the_checks(override
 
 def test_a_seed_sweep_through_the_population_launcher_writes_each_seeds_run_as_a_single_sweep_would(tmp_path, run_app):
     sweep = tmp_path / "sweep"
-    result = run_app("-m", "exploration=gaussian,rnd", "seed=0,1", "hydra/launcher=population", f"hydra.sweep.dir={sweep}", cwd=tmp_path)
+    result = run_app("-m", "buffer=uniform,prioritized", "seed=0,1", "hydra/launcher=population", f"hydra.sweep.dir={sweep}", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     assert "hydra/launcher=population: 4 runs as 3 jobs" in result.stdout + result.stderr
     summaries = {path.relative_to(sweep).as_posix(): json.loads(path.read_text()) for path in sweep.glob("**/summary.json")}
-    runs = sorted((name, summary["method"], summary["seed"]) for name, summary in summaries.items())
+    runs = sorted((name, summary["seed"]) for name, summary in summaries.items())
     assert runs == [
-        ("0/seed0/summary.json", "dqn+gaussian", 0),  # one process, population=2
-        ("0/seed1/summary.json", "dqn+gaussian", 1),
-        ("1/summary.json", "dqn+rnd", 0),  # RND trains one agent per process
-        ("2/summary.json", "dqn+rnd", 1),
+        ("0/seed0/summary.json", 0),  # one process, population=2
+        ("0/seed1/summary.json", 1),
+        ("1/summary.json", 0),  # a prioritized buffer trains one agent per process
+        ("2/summary.json", 1),
     ]
     assert "population=2" in (sweep / "0" / ".hydra" / "overrides.yaml").read_text()
+    assert "buffer=prioritized" in (sweep / "1" / ".hydra" / "overrides.yaml").read_text()
 
 
 def test_the_study_sweeps_every_explorer_over_seeds_0_to_4_through_the_population_launcher(tmp_path, run_app):

@@ -9,14 +9,19 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import OneHot
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import QValueActor
-from torchrl.objectives import DQNLoss, HardUpdate
+from torchrl.envs.transforms import RNDTransform
+from torchrl.envs.transforms.rnd import RunningMeanStd
+from torchrl.modules import MLP, QValueActor
+from torchrl.objectives import DQNLoss, HardUpdate, RNDLoss
 
 from torchrl_mbe.modules.networks import make_per_action_mlp
 from torchrl_mbe.modules.population import (
     PopulationDQNLoss,
     PopulationReplayBuffer,
+    PopulationRNDLoss,
+    PopulationRNDTransform,
     clip_grad_norm_per_member_,
+    make_members_mlp,
     make_population_q_actor,
     member_state_dict,
     reset_members_noise,
@@ -213,6 +218,77 @@ def gradients(num_members: int) -> list[torch.Tensor]:
     for parameter in parameters:
         parameter.grad = torch.randn_like(parameter)
     return parameters
+
+
+def _rnd_networks(num_members: int = 3) -> tuple[torch.nn.Module, torch.nn.Module]:
+    """An RND target and predictor of ``num_members`` members (tanh, torch's default initialization: RNDExplorer's)."""
+    return tuple(make_members_mlp(OBSERVATION_SIZE, 8, [16], num_members, activation_class=torch.nn.Tanh, glorot=False) for _ in range(2))
+
+
+def _member_mlp(network: torch.nn.Module, member: int) -> MLP:
+    single = MLP(in_features=OBSERVATION_SIZE, out_features=8, num_cells=[16], activation_class=torch.nn.Tanh)
+    single.load_state_dict(member_state_dict(network.state_dict(), member))
+    return single
+
+
+def _members_observations(steps: int, num_envs: int, num_members: int) -> torch.Tensor:
+    """``[steps, num_envs, M, F]`` observations whose mean and spread differ from member to member."""
+    scale = torch.arange(1.0, num_members + 1).view(1, 1, num_members, 1)
+    return torch.randn(steps, num_envs, num_members, OBSERVATION_SIZE) * scale + 3 * scale
+
+
+def test_an_rnd_members_rewards_and_statistics_are_a_single_rnd_transforms_on_its_own_observations():
+    torch.manual_seed(0)
+    target, predictor = _rnd_networks()
+    population = PopulationRNDTransform(target, predictor)
+    singles = [RNDTransform(_member_mlp(target, member), _member_mlp(predictor, member)) for member in range(3)]
+    for observation in _members_observations(steps=6, num_envs=4, num_members=3):
+        rewards = population._step(TensorDict(), TensorDict(observation=observation, batch_size=[4, 3]))["intrinsic_reward"]
+        for member, single in enumerate(singles):
+            alone = single._step(TensorDict(), TensorDict(observation=observation[:, member], batch_size=[4]))["intrinsic_reward"]
+            torch.testing.assert_close(rewards[:, member], alone)
+    for member, single in enumerate(singles):
+        torch.testing.assert_close(population.obs_rms.mean[member], single.obs_rms.mean)
+        torch.testing.assert_close(population.reward_rms.var[member, 0], single.reward_rms.var)
+
+
+def _rnd_batch(observation: torch.Tensor) -> TensorDict:
+    return TensorDict(next=TensorDict(observation=observation, batch_size=observation.shape[:2]), batch_size=observation.shape[:2])
+
+
+def test_an_rnd_members_predictor_gradient_is_its_single_rnd_loss_gradient():
+    torch.manual_seed(0)
+    target, predictor = _rnd_networks()
+    observation = _members_observations(steps=1, num_envs=64, num_members=3)[0]  # [B, M, F]
+    statistics = RunningMeanStd(shape=(3, OBSERVATION_SIZE))
+    statistics.update(observation)
+    PopulationRNDLoss(predictor, target, obs_rms=statistics, update_fraction=1.0)(_rnd_batch(observation))["loss_predictor"].backward()
+    for member in range(3):
+        single_predictor = _member_mlp(predictor, member)
+        single_statistics = RunningMeanStd(shape=(OBSERVATION_SIZE,))
+        single_statistics.update(observation[:, member])
+        single = RNDLoss(single_predictor, _member_mlp(target, member), obs_rms=single_statistics, update_fraction=1.0)
+        single(TensorDict(next=TensorDict(observation=observation[:, member], batch_size=[64]), batch_size=[64]))["loss_predictor"].backward()
+        torch.testing.assert_close(predictor.params["0", "weight"].grad[member], single_predictor[0].weight.grad)
+
+
+def test_each_rnd_member_averages_over_its_own_kept_samples():
+    torch.manual_seed(0)
+    target, predictor = _rnd_networks()
+    observation = _members_observations(steps=1, num_envs=64, num_members=3)[0]
+    changed = observation.clone()
+    changed[:, CHANGED] += 1.0
+    loss = PopulationRNDLoss(predictor, target, update_fraction=0.25)
+    member_losses = []
+    for batch in (observation, changed):
+        torch.manual_seed(1)  # the same kept samples in both
+        member_losses.append(loss(_rnd_batch(batch))["member_loss"])
+    per_sample = (predictor(observation) - target(observation)).pow(2).mean(-1)  # [B, M]
+    torch.manual_seed(1)
+    kept = torch.rand(per_sample.shape) < 0.25
+    torch.testing.assert_close(member_losses[0], (per_sample * kept).sum(0) / kept.sum(0))  # not diluted by the other members' samples
+    torch.testing.assert_close(member_losses[0][:CHANGED], member_losses[1][:CHANGED])
+    assert not torch.equal(member_losses[0][CHANGED], member_losses[1][CHANGED])
 
 
 def test_a_huge_gradient_in_one_member_does_not_shrink_the_others():

@@ -262,12 +262,10 @@ def _check_together(config: Config) -> None:
 
 
 def _check_population(config: Config) -> None:
-    """What a population (``population > 1``) trains with: DQN, a member-batched explorer, uniform replay."""
+    """What a population (``population > 1``) trains with: DQN and uniform replay (every explorer batches its members)."""
     refusal = f"population={config.population}"
     if not isinstance(config.algo, DQNConfig):
         raise ConfigError(f"{refusal}: only algo=dqn trains populations; use population=1 for algo={config.algo.name}.")
-    if not explorer_of(config.exploration).trains_in_populations:
-        raise ConfigError(f"{refusal}: exploration={config.exploration.name} trains one agent per process; use population=1.")
     if config.buffer.name != "uniform":
         raise ConfigError(f"{refusal}: buffer={config.buffer.name} keeps one priority tree for all members; use buffer=uniform or population=1.")
     if is_planning(config) and config.exploration.model_error_threshold is not None:

@@ -27,7 +27,7 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torchrl.data import ReplayBuffer, TensorSpec
 from torchrl.envs import ExplorationType, TransformedEnv
 from torchrl.envs.transforms import RNDTransform
-from torchrl.modules import MLP, QValueActor, reset_noise
+from torchrl.modules import MLP, MultiAgentMLP, QValueActor, reset_noise
 from torchrl.objectives import DQNLoss, RNDLoss
 
 from torchrl_mbe.app.optim import GradientStep, adam
@@ -38,7 +38,7 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
 from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.population import reset_members_noise
+from torchrl_mbe.modules.population import PopulationRNDLoss, PopulationRNDTransform, make_members_mlp, reset_members_noise
 from torchrl_mbe.objectives import DynamicsLoss
 from torchrl_mbe.rundir import is_int
 
@@ -82,7 +82,6 @@ class Explorer:
 
     schema: ClassVar[type[ExplorationConfig]] = NoExploration
     intrinsic_coef: float | None = None  # the Q-network learns reward + intrinsic_coef * ("next", "intrinsic_reward")
-    trains_in_populations: ClassVar[bool] = True  # whether it builds with ExplorerContext.num_members (population=N)
 
     def __init__(self, policy: TensorDictModuleBase) -> None:
         self.policy = policy
@@ -193,10 +192,11 @@ class RNDExplorer(EGreedyExplorer):
     The transform is appended to the training env, so every collected frame carries
     ``("next", "intrinsic_reward")``; the loss normalizes observations with the
     transform's running statistics once they exist (after the first collected step).
+    A population's members each have their own target, predictor and statistics
+    (:class:`~torchrl_mbe.modules.population.PopulationRNDTransform` and ``PopulationRNDLoss``).
     """
 
     schema = RNDExploration
-    trains_in_populations = False  # TorchRL's RNDTransform keeps one predictor and one set of running statistics
 
     def __init__(self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float) -> None:
         super().__init__(policy, eps_module)
@@ -205,21 +205,27 @@ class RNDExplorer(EGreedyExplorer):
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
         egreedy = EGreedyExplorer.build(context)
-        exploration = context.cfg.exploration
-        target, predictor = (
-            MLP(
-                in_features=context.observation_size,
-                out_features=exploration.embedding_size,
-                num_cells=list(exploration.num_cells),
-                device=context.device,
-            )
-            for _ in range(2)
+        exploration, members = context.cfg.exploration, context.num_members
+        target, predictor = (cls._network(context) for _ in range(2))
+        transform, loss, loss_key = (
+            (RNDTransform, RNDLoss, "loss_predictor") if members is None else (PopulationRNDTransform, PopulationRNDLoss, "member_loss")
         )
-        rnd = RNDTransform(target, predictor)
+        rnd, loss = transform(target, predictor), loss(predictor, target)
         context.env.append_transform(rnd)
-        loss = RNDLoss(predictor, target)
-        step = GradientStep(lambda batch: loss(batch)["loss_predictor"], adam(predictor.parameters(), exploration.lr), None, compile=context.cfg.compile)
+        step = GradientStep(
+            lambda batch: loss(batch)[loss_key], adam(predictor.parameters(), exploration.lr), None, compile=context.cfg.compile, num_members=members
+        )
         return cls(egreedy.policy, egreedy.eps_module, rnd, loss, step, exploration.intrinsic_coef)
+
+    @staticmethod
+    def _network(context: ExplorerContext) -> MLP | MultiAgentMLP:
+        """A target or predictor network: TorchRL's ``MLP`` (tanh, torch's default initialization), one per member in a population."""
+        exploration, sizes = context.cfg.exploration, (context.observation_size, context.cfg.exploration.embedding_size)
+        if context.num_members is None:
+            return MLP(in_features=sizes[0], out_features=sizes[1], num_cells=list(exploration.num_cells), activation_class=torch.nn.Tanh, device=context.device)
+        return make_members_mlp(
+            *sizes, exploration.num_cells, context.num_members, activation_class=torch.nn.Tanh, glorot=False, device=context.device
+        )
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
         """One step of the predictor, normalizing observations with the statistics the transform collects with."""

@@ -74,10 +74,11 @@ def train_dqn_population(cfg: DictConfig, run_dir: Path) -> dict:
     check_replay_memory(cfg.buffer, env, members, cfg.device)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = PopulationReplayBuffer(cfg.buffer.size, members, device=cfg.device)
+    # Built before a resume restores torch's generator: checking the policy draws from it.
+    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * members, total_frames=-1)
     population = open_population(cfg, run_dir, agent)
     keep_in_checkpoints(population, "replay_buffer", replay_buffer)
-    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, num_members=members)
-    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * members, total_frames=-1)
+    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef, num_members=members)
     keep_in_checkpoints(population, "transitions", transitions)
     keep_in_checkpoints(population, "collector", CollectorState(collector))
     batches = iter(collector)
@@ -159,6 +160,7 @@ def open_population(cfg: DictConfig, run_dir: Path, agent: DQNAgent) -> Populati
         RunFinished: ``resume`` on a population whose members have all stopped.
     """
     run_dir = Path(run_dir)
+    eval_env = make_run_env(cfg, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000)
     if not cfg.resume:
         refuse_to_overwrite(run_dir)
     checkpoint = read_checkpoint(cfg, run_dir) if cfg.resume else None
@@ -171,7 +173,7 @@ def open_population(cfg: DictConfig, run_dir: Path, agent: DQNAgent) -> Populati
         run_dir,
         resolve_env_id(cfg.env.name),
         agent,
-        make_run_env(cfg, num_envs=max(cfg.eval.episodes, 1), seed=cfg.seed + 10_000),
+        eval_env,
         runs={},
         summaries={},
         stopped={},

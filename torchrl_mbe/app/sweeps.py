@@ -24,22 +24,22 @@ def group_seeds(job_overrides: Sequence[Sequence[str]], can_group: Callable[[lis
     Jobs that set every override alike but ``seed=<int>`` form a group; each run of
     consecutive seeds in it (``0,1,2`` of ``seed=0,1,2,5``) becomes one job
     ``seed=<first> population=<n>`` where ``can_group`` accepts those overrides (it
-    says whether the config trains in populations: RND and NoisyNet do not).
+    says whether the config trains in populations: a prioritized buffer does not).
     Everything else stays as it was: a lone seed, a job without a ``seed=`` override,
     one that sets ``population`` itself, a seed listed twice, a population
     ``can_group`` refuses. A group's jobs take the place of its first job.
 
     Examples:
         >>> from torchrl_mbe.app.sweeps import group_seeds
-        >>> jobs = [[f"exploration={e}", f"seed={s}"] for e in ("gaussian", "rnd") for s in (0, 1, 2, 5)]
-        >>> for job in group_seeds(jobs, can_group=lambda overrides: "exploration=rnd" not in overrides):
+        >>> jobs = [[f"buffer={b}", f"seed={s}"] for b in ("uniform", "prioritized") for s in (0, 1, 2, 5)]
+        >>> for job in group_seeds(jobs, can_group=lambda overrides: "buffer=prioritized" not in overrides):
         ...     print(" ".join(job))
-        exploration=gaussian seed=0 population=3
-        exploration=gaussian seed=5
-        exploration=rnd seed=0
-        exploration=rnd seed=1
-        exploration=rnd seed=2
-        exploration=rnd seed=5
+        buffer=uniform seed=0 population=3
+        buffer=uniform seed=5
+        buffer=prioritized seed=0
+        buffer=prioritized seed=1
+        buffer=prioritized seed=2
+        buffer=prioritized seed=5
     """
     groups: dict[tuple[str, ...], dict[int, list[str]]] = {}  # the other overrides -> each seed's job
     grouped: list[list[str] | tuple[str, ...]] = []  # a job left as it is, or the key of its group (first member's place)

@@ -26,6 +26,9 @@ members that never exchange data, gradients or statistics:
 - :func:`reset_members_noise`: a NoisyNet population's resampling, each member's
   factorized noise drawn on its own (TorchRL's ``reset_noise`` reaches no member's
   stacked noise buffers).
+- :class:`PopulationRNDTransform` and :class:`PopulationRNDLoss`: TorchRL's RND with
+  each member's running statistics (``RNDTransform`` keeps one set for the whole env
+  batch) and each member's predictor loss averaged over its own samples.
 
 TorchRL's fused Adam and target updaters (``HardUpdate``, ``SoftUpdate``) are
 elementwise, hence per member already.
@@ -38,13 +41,17 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 from torchrl.data import TensorSpec
+from torchrl.envs.transforms import RNDTransform
+from torchrl.envs.transforms.rnd import RunningMeanStd
 from torchrl.modules import MultiAgentMLP, QValueActor
-from torchrl.objectives import DQNLoss
+from torchrl.objectives import DQNLoss, RNDLoss
 
 from torchrl_mbe.modules.networks import init_linear_layers, noisy_layers
 
 __all__ = [
     "PopulationDQNLoss",
+    "PopulationRNDLoss",
+    "PopulationRNDTransform",
     "PopulationReplayBuffer",
     "clip_grad_norm_per_member_",
     "make_members_mlp",
@@ -109,6 +116,7 @@ def make_members_mlp(
     *,
     activation_class: type[nn.Module] = nn.ReLU,
     noise_std: float | None = None,
+    glorot: bool = True,
     device: torch.device | str | None = "cpu",
 ) -> MultiAgentMLP:
     """``num_members`` independent MLPs as one TorchRL ``MultiAgentMLP``: ``[*B, M, in_features]`` to ``[*B, M, out_features]``.
@@ -119,7 +127,8 @@ def make_members_mlp(
     slice is initialized as :func:`~torchrl_mbe.modules.init_linear_layers`
     initializes a single MLP (Glorot-uniform weights, the paper's Keras
     initialization, and zero biases), layer by layer and member by member from
-    torch's global generator. With ``noise_std`` the layers are TorchRL's
+    torch's global generator; with ``glorot=False`` each member keeps torch's default
+    ``Linear`` initialization (a TorchRL ``MLP``'s). With ``noise_std`` the layers are TorchRL's
     ``NoisyLinear`` (each member a NoisyNet, its noise starting at that scale),
     which keep their own initialization; resample their noise with
     :func:`reset_members_noise`.
@@ -142,6 +151,8 @@ def make_members_mlp(
         device=device,
         **noisy_layers(noise_std),
     )
+    if not glorot:
+        return network
     # get_stateful_net puts the stacked parameters themselves into a copy of one member's MLP
     # (MultiAgentNetBase's documented way to re-initialize them in place).
     with torch.no_grad():
@@ -257,6 +268,81 @@ class PopulationDQNLoss(DQNLoss):
         per_sample = super().forward(tensordict)["loss"]  # [*B, M]
         member_loss = per_sample.reshape(-1, per_sample.shape[-1]).mean(0)
         return TensorDict(loss=member_loss.sum(), member_loss=member_loss)
+
+
+class PopulationRNDTransform(RNDTransform):
+    """TorchRL's ``RNDTransform`` on a population's env batch ``[*B, M]``: each member's own running statistics.
+
+    ``RNDTransform`` pools every observation of the batch into one running mean and
+    variance (``shape=(F,)``) and one intrinsic-reward variance (``shape=()``); here
+    they are ``(M, F)`` and ``(M, 1)``, TorchRL's ``RunningMeanStd`` over the batch
+    dimensions before the member dimension, so a member's normalized observations
+    and rewards depend on its own frames only. The target and predictor networks
+    map ``[*B, M, F]`` to ``[*B, M, E]`` (:func:`make_members_mlp`'s); everything
+    else is ``RNDTransform``'s. Pass :attr:`obs_rms` to :class:`PopulationRNDLoss`.
+
+    Examples:
+        >>> from torchrl_mbe import make_env
+        >>> from torchrl_mbe.modules.population import PopulationRNDTransform, make_members_mlp
+        >>> env = make_env("mountaincar", num_envs=(4, 3), seed=0)  # 4 envs for each of 3 members
+        >>> rnd = PopulationRNDTransform(*(make_members_mlp(2, 8, [16], num_members=3, glorot=False) for _ in range(2)))
+        >>> _ = env.append_transform(rnd)
+        >>> env.rollout(5)["next", "intrinsic_reward"].shape, rnd.obs_rms.mean.shape, rnd.reward_rms.var.shape
+        (torch.Size([4, 3, 5, 1]), torch.Size([3, 2]), torch.Size([3, 1]))
+    """
+
+    def _maybe_init_rms(self, obs: torch.Tensor) -> None:
+        members = obs.shape[-2]
+        if self.normalize_obs and self._obs_rms is None:
+            self._obs_rms = RunningMeanStd(shape=obs.shape[-2:]).to(obs.device)
+        if self.normalize_reward and self._reward_rms is None:
+            self._reward_rms = RunningMeanStd(shape=(members, 1)).to(obs.device)
+
+
+class PopulationRNDLoss(RNDLoss):
+    """TorchRL's ``RNDLoss`` on a population batch ``[*B, M]``: each member's mean over its own kept samples, summed.
+
+    ``RNDLoss`` keeps a random ``update_fraction`` of the samples and averages the
+    loss over those kept in the whole batch, which on ``B * M`` samples would give
+    each member about ``1 / M`` of its gradient. Here the kept samples are drawn
+    as ``RNDLoss`` draws them, and each member's loss is the mean over its own kept
+    samples, as a single ``RNDLoss`` on its ``B`` samples computes it.
+
+    Args:
+        predictor_network, target_network (nn.Module): ``[*B, M, F]`` to ``[*B, M, E]``.
+
+    Keyword Args:
+        obs_rms (RunningMeanStd, optional): :class:`PopulationRNDTransform`'s ``(M, F)`` statistics.
+        update_fraction (float): the fraction of each member's samples kept. Defaults to ``0.25``.
+        **kwargs: ``RNDLoss``'s ``obs_clip``.
+
+    Returns (from ``forward``):
+        a TensorDict with ``"loss_predictor"`` (the scalar sum) and ``"member_loss"`` (``[M]``).
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_mbe.modules.population import PopulationRNDLoss, make_members_mlp
+        >>> loss = PopulationRNDLoss(*(make_members_mlp(2, 8, [16], num_members=3, glorot=False) for _ in range(2)))
+        >>> out = loss(TensorDict(next=TensorDict(observation=torch.randn(64, 3, 2), batch_size=[64, 3]), batch_size=[64, 3]))
+        >>> out["member_loss"].shape, bool(out["loss_predictor"] == out["member_loss"].sum())
+        (torch.Size([3]), True)
+    """
+
+    out_keys = ["loss_predictor", "member_loss"]
+
+    def __init__(self, predictor_network: nn.Module, target_network: nn.Module, *, update_fraction: float = 0.25, **kwargs) -> None:
+        super().__init__(predictor_network, target_network, reduction="none", update_fraction=1.0, **kwargs)
+        if not 0.0 < update_fraction <= 1.0:
+            raise ValueError(f"update_fraction must be in (0, 1], got {update_fraction}.")
+        self.member_update_fraction = update_fraction
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        per_sample = super().forward(tensordict)["loss_predictor"]  # [*B, M], every sample
+        per_sample = per_sample.reshape(-1, per_sample.shape[-1])
+        kept = torch.rand(per_sample.shape, device=per_sample.device) < self.member_update_fraction
+        member_loss = torch.where(kept, per_sample, torch.zeros_like(per_sample)).sum(0) / kept.sum(0).clamp_min(1)
+        return TensorDict(loss_predictor=member_loss.sum(), member_loss=member_loss)
 
 
 def clip_grad_norm_per_member_(
