@@ -220,11 +220,14 @@ class RNDExplorer(EGreedyExplorer):
     @staticmethod
     def _network(context: ExplorerContext) -> MLP | MultiAgentMLP:
         """A target or predictor network: TorchRL's ``MLP`` (tanh, torch's default initialization), one per member in a population."""
-        exploration, sizes = context.cfg.exploration, (context.observation_size, context.cfg.exploration.embedding_size)
+        exploration = context.cfg.exploration
+        in_features, out_features = context.observation_size, exploration.embedding_size
         if context.num_members is None:
-            return MLP(in_features=sizes[0], out_features=sizes[1], num_cells=list(exploration.num_cells), activation_class=torch.nn.Tanh, device=context.device)
+            return MLP(
+                in_features=in_features, out_features=out_features, num_cells=list(exploration.num_cells), activation_class=torch.nn.Tanh, device=context.device
+            )
         return make_members_mlp(
-            *sizes, exploration.num_cells, context.num_members, activation_class=torch.nn.Tanh, glorot=False, device=context.device
+            in_features, out_features, exploration.num_cells, context.num_members, activation_class=torch.nn.Tanh, glorot=False, device=context.device
         )
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
