@@ -12,6 +12,7 @@ from torchrl.collectors import Collector
 from torchrl_mbe.app import ConfigError, check_config, train
 from torchrl_mbe.app.config import config_id
 from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
+from torchrl_mbe.app.explorers import RNDExplorer
 from torchrl_mbe.app.replay import ReplayTransitions
 from torchrl_mbe.app.run import load_safely, make_run_env
 from torchrl_mbe.modules import Standardize
@@ -70,7 +71,7 @@ def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp
     assert not torch.allclose(values[0], values[1])  # each member's own network
 
 
-@pytest.mark.parametrize("exploration", ["gaussian", "egreedy", "noisy"])
+@pytest.mark.parametrize("exploration", ["gaussian", "egreedy", "noisy", "rnd"])
 def test_changing_one_members_data_and_parameters_leaves_every_other_members_updates_unchanged(exploration, compose_config):
     clipping = ("algo.max_grad_norm=0.01", "dynamics.max_grad_norm=0.01")  # every member's gradient clipped
     cfg = compose_config("population=3", f"exploration={exploration}", "env.num_envs=4", *clipping, *SMALL)
@@ -95,13 +96,15 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
             for parameter in agent.explorer.policy.parameters():
                 parameter[perturb_member] += 0.1
     buffer = PopulationReplayBuffer(1000, 3)
-    buffer.extend(ReplayTransitions(1, 0.99, num_members=3)(batch))
+    buffer.extend(ReplayTransitions(1, 0.99, intrinsic_coef=agent.explorer.intrinsic_coef, num_members=3)(batch))
     torch.manual_seed(1)  # the same sampling draws in both
     agent.learn(batch, buffer, frames=max(cfg.algo.learning_starts, cfg.dynamics.learning_starts) + 128)
     assert agent.q_updates > 0 and agent.summary_fields().get("dynamics_updates", 1) > 0
     state = agent.explorer.policy.state_dict()
     target = agent.q_loss.target_value_network_params.flatten_keys(".")
-    stacked = [*state.items(), *target.items()]  # the windows, (num_envs, M, ...), are filled while collecting: equal
+    # RND's predictor learns from the sampled batch (its target never learns)
+    predictor = agent.explorer.rnd.predictor_network.state_dict() if isinstance(agent.explorer, RNDExplorer) else {}
+    stacked = [*state.items(), *target.items(), *predictor.items()]  # the windows, (num_envs, M, ...), are filled while collecting: equal
     return [(name, value) for name, value in stacked if isinstance(value, torch.Tensor) and not value.is_meta and value.ndim and value.shape[0] == 3]
 
 
