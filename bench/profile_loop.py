@@ -2,6 +2,7 @@
 
     python bench/profile_loop.py                                   # the default config, 10,000 frames
     python bench/profile_loop.py env.num_envs=1 collector.frames_per_batch=16 "algo.num_cells=[64,64]"
+    python bench/profile_loop.py population=5                      # a population step
 
 Any Hydra override of the app applies; logging, evaluation and early stopping are
 off so that the profile shows the loop alone. Prints frames/s and the functions
@@ -26,7 +27,8 @@ def main(overrides: list[str], top: int = 30) -> None:
         profiler.enable()
         summary = train(cfg, run_dir)
         profiler.disable()
-    print(f"{summary['frames']} frames, {summary['frames_per_s']} frames/s under the profiler")
+    for member in summary.get("members", [summary]):  # a population's summary lists its members'
+        print(f"seed {member['seed']}: {member['frames']} frames, {member['frames_per_s']} frames/s under the profiler")
     pstats.Stats(profiler).sort_stats("cumulative").print_stats(top)
 
 

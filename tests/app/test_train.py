@@ -136,6 +136,8 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(tm
         (["exploration=diagonal", "exploration.min_variance=0"], "exploration.min_variance=0.0: expected a number > 0"),
         (["exploration=diagonal", "exploration.added_variance=-1"], "exploration.added_variance=-1.0: expected a number >= 0"),
         (["dynamics.prior_num_cells=[0]"], r"dynamics.prior_num_cells=\[0\]: expected a non-empty list of positive layer sizes, or null"),
+        (["dynamics.output=softmax"], "dynamics.output='softmax': expected one of delta, categorical"),
+        (["dynamics.output=categorical"], r"dynamics \(output, normalize\): output='categorical' .* pass normalize=False"),
     ],
 )
 def test_bad_config_values_get_one_clear_error(tmp_path, overrides, message, compose_config):

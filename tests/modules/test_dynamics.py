@@ -238,3 +238,88 @@ def test_raw_units_keep_identity_statistics_and_learn_one_hot_transitions():
     torch.testing.assert_close(losses["loss_dynamics"].detach(), losses["mse_dynamics"])
     with torch.no_grad():
         torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)
+
+
+def grid_transitions(size: int, pairs: int, seed: int = 0) -> TensorDict:
+    """``pairs`` distinct (cell, action) pairs of a DeepSea-like ``size`` x ``size`` one-hot grid, each to a random neighbour one row down."""
+    generator = torch.Generator().manual_seed(seed)
+    cells = torch.randperm((size - 1) * size, generator=generator)[:pairs]
+    action = torch.randint(2, (pairs,), generator=generator)
+    row, column = cells // size, cells % size
+    next_cells = (row + 1) * size + (column + torch.randint(2, (pairs,), generator=generator) * 2 - 1).clamp(0, size - 1)
+    cells_one_hot = torch.eye(size * size)
+    return TensorDict({"observation": cells_one_hot[cells], "action": action, ("next", "observation"): cells_one_hot[next_cells]}, [pairs])
+
+
+def test_a_categorical_model_learns_more_next_cells_than_a_delta_model_of_its_width_can_span():
+    """200 pairs of a 20 x 20 grid, 32 hidden units: the delta model's predictions span 33 directions and miss; a softmax's peak does not."""
+    data = grid_transitions(20, 200)
+    errors = {}
+    for output in ("delta", "categorical"):
+        torch.manual_seed(0)
+        dynamics = DynamicsModel(400, Categorical(2), (32,), normalize=False, output=output)
+        loss = DynamicsLoss(dynamics)
+        optimizer = torch.optim.Adam(dynamics.parameters(), lr=3e-3)
+        for _ in range(600):
+            optimizer.zero_grad()
+            loss(data)["loss_dynamics"].backward()
+            optimizer.step()
+        with torch.no_grad():
+            errors[output] = (dynamics(data.clone())["predicted_observation"] - data["next", "observation"]).norm(dim=-1)
+    assert errors["delta"].median() > 1.0  # cells are 1.41 apart: 33 directions hold little of 200 targets
+    assert errors["categorical"].max() < 0.1
+
+
+@pytest.mark.parametrize("prior_scale", [0.0, 2.0], ids=["no-prior", "prior"])
+@pytest.mark.parametrize("num_members", [None, 3], ids=["single", "population"])
+def test_a_categorical_model_trains_on_the_cross_entropy_and_its_offset_cancelling_the_prior(num_members, prior_scale):
+    torch.manual_seed(0)
+    dynamics = DynamicsModel(9, Categorical(2), (16,), num_members=num_members, prior_scale=prior_scale, normalize=False, output="categorical")
+    batch = (4,) if num_members is None else (4, num_members)
+    cells = torch.eye(9)[torch.randint(9, batch)]
+    next_cells = torch.eye(9)[torch.randint(9, batch)]
+    next_cells[0] = 0  # a terminal transition (DeepSea's next observation after its last row) adds no cross-entropy
+    data = TensorDict({"observation": cells, "action": torch.randint(2, batch), ("next", "observation"): next_cells}, batch)
+    logits, offset = dynamics.categorical_parts(cells, data["action"])
+    probabilities = logits.softmax(-1)
+    torch.testing.assert_close(probabilities.sum(-1), torch.ones(batch))
+    expected = -(next_cells * probabilities.log()).sum(-1)
+    if prior_scale:
+        expected = expected + offset.square().sum(-1)  # nothing to cancel it yet: an offset of the prior's size
+        assert offset.norm(dim=-1).min() > 0.1
+    else:
+        assert offset is None
+    prediction = dynamics(data.clone())["predicted_observation"]
+    torch.testing.assert_close(prediction, probabilities if offset is None else probabilities + offset)
+    losses = DynamicsLoss(dynamics)(data)
+    torch.testing.assert_close(losses["loss_dynamics"], expected.mean(0))  # [M] in a population: one mean per member
+    torch.testing.assert_close(losses["mse_dynamics"], (prediction - next_cells).square().mean(-1).mean(0).detach())
+
+
+def test_a_categorical_model_with_a_prior_sends_untried_actions_off_the_visited_cells():
+    """200 (cell, action) pairs of a 20 x 20 grid: a softmax alone puts each untried action on a visited cell; with the prior, none is near one."""
+    tried = grid_transitions(20, 200)
+    untried = tried.clone().set("action", 1 - tried["action"])
+    visited = torch.cat([tried["observation"], tried["next", "observation"]]).unique(dim=0)
+    distances = {}
+    for prior_scale in (0.0, 25.0):
+        torch.manual_seed(0)
+        dynamics = DynamicsModel(400, Categorical(2), (64,), prior_scale=prior_scale, prior_num_cells=(8,), normalize=False, output="categorical")
+        loss = DynamicsLoss(dynamics)
+        optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=3e-3)
+        for _ in range(600):
+            optimizer.zero_grad()
+            loss(tried)["loss_dynamics"].backward()
+            optimizer.step()
+        with torch.no_grad():
+            assert (dynamics(tried.clone())["predicted_observation"] - tried["next", "observation"]).norm(dim=-1).max() < 0.1
+            distances[prior_scale] = torch.cdist(dynamics(untried.clone())["predicted_observation"], visited).min(-1).values
+    assert distances[0.0].max() < 0.1  # the tried action's next cell: an untried action looks familiar
+    assert distances[25.0].min() > 1.0  # cells are 1.41 apart
+
+
+def test_a_categorical_model_needs_raw_units_and_a_known_output():
+    with pytest.raises(ValueError, match="output='categorical' .* pass normalize=False"):
+        DynamicsModel(9, Categorical(2), output="categorical")
+    with pytest.raises(ValueError, match=r"output must be one of \('delta', 'categorical'\), got 'softmax'"):
+        DynamicsModel(9, Categorical(2), output="softmax", normalize=False)

@@ -41,6 +41,7 @@ from torchrl_mbe.app.settings import (
     setting,
 )
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
+from torchrl_mbe.modules.dynamics import OUTPUTS, check_output
 from torchrl_mbe.modules.exploration import check_eps_schedule
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
@@ -117,6 +118,7 @@ class DynamicsConfig:
     prior_scale: float = setting(0.0, NON_NEGATIVE)  # a frozen random network's weight in each prediction (0: none)
     prior_num_cells: Optional[list[int]] = setting(None, LAYERS.or_none())  # the prior's hidden layers (null: num_cells)
     normalize: bool = True  # standardize inputs and deltas; false keeps raw units (one-hot observations)
+    output: str = setting("delta", one_of(*OUTPUTS))  # categorical: a softmax over a one-hot observation's entries
 
 
 @dataclass
@@ -257,6 +259,10 @@ def _check_together(config: Config) -> None:
     if is_planning(config) and config.dynamics.name == "oracle" and getattr(task_of(env_id), "oracle", None) is None:
         with_oracle = ", ".join(alias for alias, task in TASKS.items() if task.oracle is not None)
         raise ConfigError(f"dynamics=oracle: {config.env.name} has no oracle dynamics (those that have: {with_oracle}); use dynamics=mlp.")
+    try:
+        check_output(config.dynamics.output, config.dynamics.normalize)
+    except ValueError as error:  # the dynamics model's own rule, named by the keys it reads
+        raise ConfigError(f"dynamics (output, normalize): {error}") from None
     if config.population > 1:
         _check_population(config)
 
@@ -347,14 +353,15 @@ def config_id(cfg: DictConfig) -> str:
     """A short fingerprint of everything that shapes a run's result except its seed.
 
     Runs with the same ``config_id`` ran the same experiment; the report groups by it.
-    A setting added since runs were first fingerprinted counts only when it is set
-    (:data:`_ADDED_SETTINGS`), so a run of an older version keeps its id.
+    A setting added since runs were first fingerprinted counts only when it differs
+    from the value that changes nothing (:data:`_ADDED_SETTINGS`), so a run of an older
+    version keeps its id.
     """
     settings = _flatten(OmegaConf.to_container(cfg, resolve=True))
     shaping = {
         key: value
         for key, value in settings.items()
-        if key != "seed" and key.split(".")[0] not in _PLACEMENT and not (key in _ADDED_SETTINGS and value is None)
+        if key != "seed" and key.split(".")[0] not in _PLACEMENT and _ADDED_SETTINGS.get(key, _NOT_ADDED) != value
     }
     return hashlib.sha1(json.dumps(shaping, sort_keys=True, default=str).encode()).hexdigest()[:8]
 
@@ -362,8 +369,9 @@ def config_id(cfg: DictConfig) -> str:
 # Keys that change where and how a run is shown, or how seeds share a process, not what a run (a member) computes.
 _PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag", "population")
 
-# Settings added after torchrl-mbe 0.2.0, whose unset (null) value changes nothing that version computed.
-_ADDED_SETTINGS = ("env.size",)
+# Settings added after torchrl-mbe 0.2.0, with their values that change nothing that version computed.
+_ADDED_SETTINGS = {"env.size": None, "dynamics.output": "delta"}
+_NOT_ADDED = object()
 
 
 def _flatten(tree: dict, prefix: str = "") -> dict:

@@ -362,6 +362,7 @@ class PlanningExplorer(EGreedyExplorer):
                 prior_scale=cfg.dynamics.prior_scale,
                 prior_num_cells=cfg.dynamics.prior_num_cells,
                 normalize=cfg.dynamics.normalize,
+                output=cfg.dynamics.output,
                 device=context.device,
             )
         novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)

@@ -15,7 +15,17 @@ from torchrl_mbe.modules.networks import init_linear_layers
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.population import make_members_mlp
 
-__all__ = ["DynamicsModel", "ExactDynamics", "action_indices", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
+__all__ = ["DynamicsModel", "ExactDynamics", "action_indices", "check_output", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
+
+OUTPUTS = ("delta", "categorical")
+
+
+def check_output(output: str, normalize: bool) -> None:
+    """Raises ``ValueError`` unless ``output`` is one of :data:`OUTPUTS` and, when categorical, ``normalize`` is off."""
+    if output not in OUTPUTS:
+        raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}.")
+    if output == "categorical" and normalize:
+        raise ValueError("output='categorical' predicts probabilities over the observation's entries in raw units; pass normalize=False.")
 
 
 def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
@@ -127,6 +137,18 @@ class DynamicsModel(TensorDictModuleBase):
             keeps raw units (statistics stay the identity and :meth:`fit_normalization`
             does nothing), for one-hot observations such as DeepSea's grid, where a
             rarely visited cell's tiny spread would scale its entry up a hundredfold.
+        output (str): ``"delta"`` (the default) predicts the state's change;
+            ``"categorical"``, for one-hot observations (DeepSea's grid, with
+            ``normalize=False``), predicts the next observation as a softmax over its
+            entries, trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy.
+            A delta's predictions lie in an affine span of ``num_cells[-1] + 1``
+            directions, fewer than the distinct next cells a large grid needs; a
+            softmax's peak can sit on any entry (docs/results.md, section 6). With a
+            prior, a categorical network has as many outputs again: an *offset*,
+            trained to cancel the prior where the model has data, added to the
+            softmax; where it has none the prediction lands off every cell, as a
+            delta model's does (a softmax alone puts an untried action's next cell
+            on a visited one).
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -147,6 +169,9 @@ class DynamicsModel(TensorDictModuleBase):
         >>> narrow = DynamicsModel(env.observation_spec, env.action_spec, prior_scale=25.0, prior_num_cells=[8])
         >>> narrow.prior[0].out_features, narrow.net[0].out_features
         (8, 24)
+        >>> grid = DynamicsModel(9, env.action_spec, [16], output="categorical", normalize=False)  # a 3 x 3 one-hot grid
+        >>> grid.predict(torch.eye(9)[:1], env.action_spec.rand((1,))).sum(-1)  # a distribution over the 9 cells
+        tensor([1.0000], grad_fn=<SumBackward1>)
     """
 
     def __init__(
@@ -163,9 +188,11 @@ class DynamicsModel(TensorDictModuleBase):
         prior_scale: float = 0.0,
         prior_num_cells: Sequence[int] | None = None,
         normalize: bool = True,
+        output: str = "delta",
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
+        check_output(output, normalize)
         observation_size = _observation_size(observation_size, observation_key)
         prior_num_cells = list(num_cells if prior_num_cells is None else prior_num_cells)
         if observation_size < 1 or any(int(cells) < 1 for cells in [*num_cells, *prior_num_cells]):
@@ -180,22 +207,24 @@ class DynamicsModel(TensorDictModuleBase):
         self.observation_size = observation_size
         self.num_members = num_members
         in_features = observation_size + num_discrete_actions(self.action_spec)
-        self.net = self._make_net(in_features, list(num_cells), activation_class, device)
+        self.output = output
         self.prior_scale = prior_scale
-        self.prior = self._make_net(in_features, prior_num_cells, activation_class, device).requires_grad_(False) if prior_scale > 0 else None
+        with_offset = output == "categorical" and prior_scale > 0  # the softmax's logits, then the offset that cancels the prior
+        self.net = self._make_net(in_features, list(num_cells), activation_class, device, (2 if with_offset else 1) * observation_size)
+        self.prior = (
+            self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(False) if prior_scale > 0 else None
+        )
         statistics_shape = observation_size if num_members is None else (num_members, observation_size)
         self.observation_norm = Standardize(statistics_shape, device=device)
         self.delta_norm = Standardize(statistics_shape, device=device)
         self.normalize = normalize
         self.normalization_fitted = not normalize  # raw units need no fit
 
-    def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device) -> nn.Module:
+    def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device, out_features: int) -> nn.Module:
         """The MLP (Glorot-uniform weights, zero biases), or the members' ``MultiAgentMLP``."""
         if self.num_members is not None:
-            return make_members_mlp(
-                in_features, self.observation_size, num_cells, self.num_members, activation_class=activation_class, device=device
-            )
-        mlp = MLP(in_features=in_features, out_features=self.observation_size, num_cells=num_cells, activation_class=activation_class, device=device)
+            return make_members_mlp(in_features, out_features, num_cells, self.num_members, activation_class=activation_class, device=device)
+        mlp = MLP(in_features=in_features, out_features=out_features, num_cells=num_cells, activation_class=activation_class, device=device)
         return init_linear_layers(mlp)
 
     @property
@@ -203,10 +232,25 @@ class DynamicsModel(TensorDictModuleBase):
         """Typical size of each dimension's change; :class:`DynamicsLoss` measures errors in these units."""
         return self.delta_norm.scale
 
+    def _inputs(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        normalized = self.observation_norm(observation)
+        return torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
+
+    def categorical_parts(self, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """A categorical model's logits and its offset (the trained offset plus the prior; ``None`` without a prior)."""
+        inputs = self._inputs(observation, action)
+        output = self.net(inputs)
+        if self.prior is None:
+            return output, None
+        logits, offset = output.split(self.observation_size, -1)
+        return logits, offset + self.prior_scale * self.prior(inputs)
+
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
-        normalized = self.observation_norm(observation)
-        inputs = torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
+        if self.output == "categorical":
+            logits, offset = self.categorical_parts(observation, action)
+            return logits.softmax(-1) if offset is None else logits.softmax(-1) + offset
+        inputs = self._inputs(observation, action)
         output = self.net(inputs)
         if self.prior is not None:
             output = output + self.prior_scale * self.prior(inputs)

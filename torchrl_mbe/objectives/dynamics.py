@@ -20,6 +20,12 @@ class DynamicsLoss(LossModule):
     reads the batch under its :attr:`tensor_keys` and feeds the module, so the
     batch's keys can be renamed with :meth:`set_keys` without touching the module.
 
+    A categorical :class:`~torchrl_mbe.DynamicsModel` (``output="categorical"``) is
+    trained with the cross-entropy ``-sum_i s'_i log softmax(logits)_i`` instead (a next
+    observation of zeros, DeepSea's after its last row, adds nothing to it), plus, with a
+    prior, the squared norm of its offset, which the network learns to cancel
+    (:meth:`~torchrl_mbe.DynamicsModel.categorical_parts`).
+
     When the module has a ``delta_scale`` buffer (as :class:`~torchrl_mbe.DynamicsModel`
     does) the error of each dimension is divided by it, so that every dimension
     weighs the same whatever its units (mbrl-lib trains in normalized units too);
@@ -105,11 +111,13 @@ class DynamicsLoss(LossModule):
         if torch.is_grad_enabled() and getattr(self.dynamics, "normalization_fitted", True) is False:
             next_key = unravel_key(("next", observation_key))
             self.dynamics.fit_normalization(inputs.copy().set(next_key, next_observation), next_observation_key=next_key)
+        num_members = getattr(self.dynamics, "num_members", None)
+        if getattr(self.dynamics, "output", "delta") == "categorical":
+            return self._categorical_losses(inputs.get(observation_key), inputs.get(action_key), next_observation, num_members)
         prediction = self.dynamics(inputs).get(self.dynamics.out_keys[0])
         error = prediction - next_observation
         scale = getattr(self.dynamics, "delta_scale", None) if self.normalize else None
         normalized_error = error if scale is None else error / scale
-        num_members = getattr(self.dynamics, "num_members", None)
         return TensorDict(
             {
                 "loss_dynamics": _mean(normalized_error.square(), num_members),
@@ -117,6 +125,16 @@ class DynamicsLoss(LossModule):
             },
             batch_size=[],
         )
+
+    def _categorical_losses(self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor, num_members: int | None) -> TensorDict:
+        logits, offset = self.dynamics.categorical_parts(observation, action)
+        loss = -(next_observation * logits.log_softmax(-1)).sum(-1, keepdim=True)
+        prediction = logits.detach().softmax(-1)
+        if offset is not None:
+            loss = loss + offset.square().sum(-1, keepdim=True)
+            prediction = prediction + offset.detach()
+        error = prediction - next_observation
+        return TensorDict({"loss_dynamics": _mean(loss, num_members), "mse_dynamics": _mean(error.square(), num_members)}, batch_size=[])
 
 
 def _mean(squared_errors: torch.Tensor, num_members: int | None) -> torch.Tensor:
