@@ -140,7 +140,8 @@ class DynamicsModel(TensorDictModuleBase):
         output (str): ``"delta"`` (the default) predicts the state's change;
             ``"categorical"``, for one-hot observations (DeepSea's grid, with
             ``normalize=False``), predicts the next observation as a softmax over its
-            entries, trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy.
+            entries and one class more for an observation of zeros (DeepSea's after its
+            last row), trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy.
             A delta's predictions lie in an affine span of ``num_cells[-1] + 1``
             directions, fewer than the distinct next cells a large grid needs; a
             softmax's peak can sit on any entry (docs/results.md, section 6). With a
@@ -170,8 +171,8 @@ class DynamicsModel(TensorDictModuleBase):
         >>> narrow.prior[0].out_features, narrow.net[0].out_features
         (8, 24)
         >>> grid = DynamicsModel(9, env.action_spec, [16], output="categorical", normalize=False)  # a 3 x 3 one-hot grid
-        >>> grid.predict(torch.eye(9)[:1], env.action_spec.rand((1,))).sum(-1)  # a distribution over the 9 cells
-        tensor([1.0000], grad_fn=<SumBackward1>)
+        >>> grid.predict(torch.eye(9)[:1], env.action_spec.rand((1,))).sum(-1) <= 1  # probabilities over the 9 cells (the rest on zeros)
+        tensor([True])
     """
 
     def __init__(
@@ -209,8 +210,7 @@ class DynamicsModel(TensorDictModuleBase):
         in_features = observation_size + num_discrete_actions(self.action_spec)
         self.output = output
         self.prior_scale = prior_scale
-        with_offset = output == "categorical" and prior_scale > 0  # the softmax's logits, then the offset that cancels the prior
-        self.net = self._make_net(in_features, list(num_cells), activation_class, device, (2 if with_offset else 1) * observation_size)
+        self.net = self._make_net(in_features, list(num_cells), activation_class, device, self._net_outputs())
         self.prior = (
             self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(False) if prior_scale > 0 else None
         )
@@ -219,6 +219,12 @@ class DynamicsModel(TensorDictModuleBase):
         self.delta_norm = Standardize(statistics_shape, device=device)
         self.normalize = normalize
         self.normalization_fitted = not normalize  # raw units need no fit
+
+    def _net_outputs(self) -> int:
+        """A delta per feature; or a logit per feature and one for zeros, then an offset per feature when there is a prior to cancel."""
+        if self.output == "delta":
+            return self.observation_size
+        return self.observation_size + 1 + (self.observation_size if self.prior_scale > 0 else 0)
 
     def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device, out_features: int) -> nn.Module:
         """The MLP (Glorot-uniform weights, zero biases), or the members' ``MultiAgentMLP``."""
@@ -237,19 +243,20 @@ class DynamicsModel(TensorDictModuleBase):
         return torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
 
     def categorical_parts(self, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """A categorical model's logits and its offset (the trained offset plus the prior; ``None`` without a prior)."""
+        """A categorical model's logits (one per feature, the last for zeros) and its offset (the trained offset plus the prior; ``None`` without a prior)."""
         inputs = self._inputs(observation, action)
         output = self.net(inputs)
         if self.prior is None:
             return output, None
-        logits, offset = output.split(self.observation_size, -1)
+        logits, offset = output.split([self.observation_size + 1, self.observation_size], -1)
         return logits, offset + self.prior_scale * self.prior(inputs)
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
         if self.output == "categorical":
             logits, offset = self.categorical_parts(observation, action)
-            return logits.softmax(-1) if offset is None else logits.softmax(-1) + offset
+            probabilities = logits.softmax(-1)[..., :-1]  # the class of zeros adds nothing to the prediction
+            return probabilities if offset is None else probabilities + offset
         inputs = self._inputs(observation, action)
         output = self.net(inputs)
         if self.prior is not None:

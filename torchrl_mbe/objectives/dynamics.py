@@ -22,7 +22,7 @@ class DynamicsLoss(LossModule):
 
     A categorical :class:`~torchrl_mbe.DynamicsModel` (``output="categorical"``) is
     trained with the cross-entropy ``-sum_i s'_i log softmax(logits)_i`` instead (a next
-    observation of zeros, DeepSea's after its last row, adds nothing to it), plus, with a
+    observation of zeros, DeepSea's after its last row, is the last class), plus, with a
     prior, the squared norm of its offset, which the network learns to cancel
     (:meth:`~torchrl_mbe.DynamicsModel.categorical_parts`).
 
@@ -128,8 +128,9 @@ class DynamicsLoss(LossModule):
 
     def _categorical_losses(self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor, num_members: int | None) -> TensorDict:
         logits, offset = self.dynamics.categorical_parts(observation, action)
-        loss = -(next_observation * logits.log_softmax(-1)).sum(-1, keepdim=True)
-        prediction = logits.detach().softmax(-1)
+        zeros = 1 - next_observation.sum(-1, keepdim=True)  # 1 for an observation of zeros, 0 for a one-hot one
+        loss = -(torch.cat([next_observation, zeros], -1) * logits.log_softmax(-1)).sum(-1, keepdim=True)
+        prediction = logits.detach().softmax(-1)[..., :-1]
         if offset is not None:
             loss = loss + offset.square().sum(-1, keepdim=True)
             prediction = prediction + offset.detach()
