@@ -240,6 +240,16 @@ def test_raw_units_keep_identity_statistics_and_learn_one_hot_transitions():
         torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)
 
 
+def fit(dynamics: DynamicsModel, data: TensorDict, steps: int, lr: float) -> None:
+    """``steps`` full-batch Adam steps of :class:`DynamicsLoss` on ``data`` (the prior, if any, stays frozen)."""
+    loss = DynamicsLoss(dynamics)
+    optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=lr)
+    for _ in range(steps):
+        optimizer.zero_grad()
+        loss(data)["loss_dynamics"].backward()
+        optimizer.step()
+
+
 def grid_transitions(size: int, pairs: int, seed: int = 0) -> TensorDict:
     """``pairs`` distinct (cell, action) pairs of a DeepSea-like ``size`` x ``size`` one-hot grid, each to a random neighbour one row down."""
     generator = torch.Generator().manual_seed(seed)
@@ -258,12 +268,7 @@ def test_a_categorical_model_learns_more_next_cells_than_a_delta_model_of_its_wi
     for output in ("delta", "categorical"):
         torch.manual_seed(0)
         dynamics = DynamicsModel(400, Categorical(2), (32,), normalize=False, output=output)
-        loss = DynamicsLoss(dynamics)
-        optimizer = torch.optim.Adam(dynamics.parameters(), lr=3e-3)
-        for _ in range(600):
-            optimizer.zero_grad()
-            loss(data)["loss_dynamics"].backward()
-            optimizer.step()
+        fit(dynamics, data, steps=600, lr=3e-3)
         with torch.no_grad():
             errors[output] = (dynamics(data.clone())["predicted_observation"] - data["next", "observation"]).norm(dim=-1)
     assert errors["delta"].median() > 1.0  # cells are 1.41 apart: 33 directions hold little of 200 targets
@@ -304,12 +309,7 @@ def test_a_categorical_model_predicts_zeros_after_the_last_row():
     data["next", "observation"][-1] = 0
     torch.manual_seed(0)
     dynamics = DynamicsModel(6, Categorical(2), (16,), prior_scale=1.0, prior_num_cells=(4,), normalize=False, output="categorical")
-    loss = DynamicsLoss(dynamics)
-    optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=1e-2)
-    for _ in range(300):
-        optimizer.zero_grad()
-        loss(data)["loss_dynamics"].backward()
-        optimizer.step()
+    fit(dynamics, data, steps=300, lr=1e-2)
     with torch.no_grad():
         torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)
 
@@ -323,12 +323,7 @@ def test_a_categorical_model_with_a_prior_sends_untried_actions_off_the_visited_
     for prior_scale in (0.0, 25.0):
         torch.manual_seed(0)
         dynamics = DynamicsModel(400, Categorical(2), (64,), prior_scale=prior_scale, prior_num_cells=(8,), normalize=False, output="categorical")
-        loss = DynamicsLoss(dynamics)
-        optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=3e-3)
-        for _ in range(600):
-            optimizer.zero_grad()
-            loss(tried)["loss_dynamics"].backward()
-            optimizer.step()
+        fit(dynamics, tried, steps=600, lr=3e-3)
         with torch.no_grad():
             assert (dynamics(tried.clone())["predicted_observation"] - tried["next", "observation"]).norm(dim=-1).max() < 0.1
             distances[prior_scale] = torch.cdist(dynamics(untried.clone())["predicted_observation"], visited).min(-1).values
