@@ -355,7 +355,7 @@ def test_ctrl_c_during_the_final_evaluation_exits_with_the_checkpoint_and_the_re
     assert not (tmp_path / "summary.json").exists()
 
 
-def test_a_setting_added_since_0_2_leaves_the_config_id_of_runs_that_leave_it_unset(compose_config):
+def test_a_setting_added_since_0_2_leaves_the_config_id_of_runs_that_leave_it_at_its_old_behaviour(compose_config):
     from omegaconf import OmegaConf
 
     from torchrl_mbe.app.config import config_id
@@ -363,5 +363,8 @@ def test_a_setting_added_since_0_2_leaves_the_config_id_of_runs_that_leave_it_un
     cfg = compose_config()
     as_0_2_wrote_it = OmegaConf.create(OmegaConf.to_container(cfg))
     del as_0_2_wrote_it.env["size"]  # 0.2.0 had no env.size
+    del as_0_2_wrote_it.dynamics["output"]  # nor dynamics.output (its models predicted deltas)
     assert config_id(cfg) == config_id(as_0_2_wrote_it)  # the report groups old and new runs of one config together
     assert config_id(compose_config("env=deepsea", "env.size=10")) != config_id(compose_config("env=deepsea", "env.size=20"))
+    categorical = compose_config("dynamics.output=categorical", "dynamics.normalize=false")
+    assert config_id(categorical) != config_id(compose_config("dynamics.normalize=false"))
