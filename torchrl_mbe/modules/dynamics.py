@@ -251,12 +251,16 @@ class DynamicsModel(TensorDictModuleBase):
         logits, offset = output.split([self.observation_size + 1, self.observation_size], -1)
         return logits, offset + self.prior_scale * self.prior(inputs)
 
+    @staticmethod
+    def categorical_prediction(logits: torch.Tensor, offset: torch.Tensor | None) -> torch.Tensor:
+        """The next observation a categorical model's parts predict: each feature's probability (the class of zeros adds nothing), plus the offset."""
+        probabilities = logits.softmax(-1)[..., :-1]
+        return probabilities if offset is None else probabilities + offset
+
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
         if self.output == "categorical":
-            logits, offset = self.categorical_parts(observation, action)
-            probabilities = logits.softmax(-1)[..., :-1]  # the class of zeros adds nothing to the prediction
-            return probabilities if offset is None else probabilities + offset
+            return self.categorical_prediction(*self.categorical_parts(observation, action))
         inputs = self._inputs(observation, action)
         output = self.net(inputs)
         if self.prior is not None:

@@ -130,16 +130,14 @@ class DynamicsLoss(LossModule):
         logits, offset = self.dynamics.categorical_parts(observation, action)
         zeros = 1 - next_observation.sum(-1, keepdim=True)  # 1 for an observation of zeros, 0 for a one-hot one
         loss = -(torch.cat([next_observation, zeros], -1) * logits.log_softmax(-1)).sum(-1, keepdim=True)
-        prediction = logits.detach().softmax(-1)[..., :-1]
         if offset is not None:
             loss = loss + offset.square().sum(-1, keepdim=True)
-            prediction = prediction + offset.detach()
-        error = prediction - next_observation
+        error = self.dynamics.categorical_prediction(logits, offset).detach() - next_observation
         return TensorDict({"loss_dynamics": _mean(loss, num_members), "mse_dynamics": _mean(error.square(), num_members)}, batch_size=[])
 
 
-def _mean(squared_errors: torch.Tensor, num_members: int | None) -> torch.Tensor:
-    """The mean, or for a population's ``[*B, M, F]`` errors one mean per member, ``[M]`` (summed, each member's gradient is its own)."""
+def _mean(losses: torch.Tensor, num_members: int | None) -> torch.Tensor:
+    """The mean, or for a population's ``[*B, M, F]`` losses one mean per member, ``[M]`` (summed, each member's gradient is its own)."""
     if num_members is None:
-        return squared_errors.mean()
-    return squared_errors.reshape(-1, num_members, squared_errors.shape[-1]).mean((0, 2))
+        return losses.mean()
+    return losses.reshape(-1, num_members, losses.shape[-1]).mean((0, 2))
