@@ -12,7 +12,7 @@ from matplotlib.ticker import MaxNLocator
 
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
-from torchrl_mbe.report.runs import DEEPSEA, Run, solved_count, solved_threshold
+from torchrl_mbe.report.runs import DEEPSEA, Run, deepsea_growth, solved_count, solved_threshold
 
 __all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "plot_deepsea_scaling", "mean_curve", "last_finished_episode", "save_figure"]
 
@@ -108,7 +108,8 @@ def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -
     """Episodes to solved against DeepSea's size N, log-log, beside dithering's 2^N.
 
     ``scaling[method][N]`` are the method's runs at size N (:func:`~torchrl_mbe.report.runs.deepsea_scaling`).
-    One dot per seed that solved and a line through each method's medians over them; one cross per
+    One dot per seed that solved and a line through each method's medians over them, its growth
+    exponent (:func:`~torchrl_mbe.report.runs.deepsea_growth`) in the legend; one cross per
     seed that did not, stacked down from the top edge, above every run's episode count. Methods
     are shifted a little sideways so that their markers do not hide each other.
     """
@@ -129,7 +130,8 @@ def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -
             heights = 0.97 - 0.03 * np.arange(unsolved)
             ax.scatter([size * shift] * unsolved, heights, transform=top_edge, color=color, marker="x", s=30, zorder=4)
         xs, ys = zip(*medians) if medians else ((), ())
-        ax.plot(xs, ys, color=color, marker="o", label=method)
+        growth = deepsea_growth(by_size)
+        ax.plot(xs, ys, color=color, marker="o", label=method if growth is None else f"{method}: ~N^{growth.exponent:.1f}")
     dense = np.geomspace(sizes[0], sizes[-1], 100)  # 2^N bends on log-log axes
     ax.plot(dense, 2.0**dense, color="0.3", linestyle="--", linewidth=1, label="dithering: 2^N")
     ax.scatter([], [], color="0.3", marker="x", label="unsolved: one cross per seed, at the top")

@@ -38,6 +38,7 @@ __all__ = [
     "running_average",
     "episode_stats",
     "max_position",
+    "loglog_slope",
 ]
 
 
@@ -225,3 +226,20 @@ def max_position(states: np.ndarray, dim: int = 0) -> float:
     if len(states) == 0:
         raise ValueError("max_position needs at least one state.")
     return float(states[:, dim].max())
+
+
+def loglog_slope(sizes: Sequence[float], values: Sequence[float]) -> float | None:
+    """The least-squares slope ``k`` of ``log(value)`` on ``log(size)``: values grow like ``size ** k``.
+
+    ``None`` for fewer than two distinct sizes (no line to fit).
+
+    Examples:
+        >>> round(loglog_slope([10, 20, 40], [100, 400, 1600]), 6)
+        2.0
+        >>> loglog_slope([10], [100]) is None
+        True
+    """
+    if len(set(sizes)) < 2:
+        return None
+    slope, _ = np.polyfit(np.log(np.asarray(sizes, dtype=np.float64)), np.log(np.asarray(values, dtype=np.float64)), 1)
+    return float(slope)

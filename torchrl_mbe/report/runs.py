@@ -37,12 +37,12 @@ from pathlib import Path
 import numpy as np
 
 from torchrl_mbe.envs.registry import TASKS, EnvBounds, task_of
-from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverage
+from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverage, loglog_slope
 from torchrl_mbe.rundir import EXPLORATION_PREFIX, SUMMARY, SUMMARY_FIELDS, VISITED_EPISODES, VISITED_STATES, table_file
 
 __all__ = [
     "RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "solved_count",
-    "file_stem", "method_key", "DEEPSEA", "deepsea_size", "deepsea_scaling",
+    "file_stem", "method_key", "DEEPSEA", "deepsea_size", "deepsea_scaling", "Growth", "deepsea_growth",
 ]
 
 logger = logging.getLogger(__name__)
@@ -306,6 +306,29 @@ def deepsea_scaling(runs: Sequence[Run]) -> dict[str, dict[int, list[Run]]]:
         for label, group in group_runs(by_size[size]).items():
             scaling.setdefault(label, {})[size] = group
     return dict(sorted(scaling.items(), key=lambda item: method_key(item[0])))
+
+
+@dataclass(frozen=True)
+class Growth:
+    """How a method's episodes to solved grow with DeepSea's size: about ``N ** exponent``, fitted on ``sizes``."""
+
+    exponent: float
+    sizes: tuple[int, ...]
+
+
+def deepsea_growth(by_size: dict[int, list[Run]]) -> Growth | None:
+    """The log-log slope of the median episodes to solved (over the seeds that solved) against N.
+
+    Fitted over the sizes where at least half of the seeds solved, so that a size that one
+    lucky seed solved does not bend the line; ``None`` where fewer than two sizes qualify.
+    """
+    medians = {}
+    for size, runs in by_size.items():
+        solved = [run.episodes_to_solved for run in runs if run.episodes_to_solved is not None]
+        if solved and 2 * len(solved) >= len(runs):
+            medians[size] = float(np.median(solved))
+    exponent = loglog_slope(list(medians), list(medians.values()))
+    return None if exponent is None else Growth(exponent, tuple(medians))
 
 
 def env_bounds(env: str, runs: Sequence[Run]) -> tuple[EnvBounds | None, bool]:
