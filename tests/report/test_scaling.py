@@ -9,10 +9,11 @@ from test_report import assert_png, table_row, write_run
 from torchrl_mbe.report import load_runs, main, write_report
 
 def write_deepsea_run(
-    run_dir: Path, method: str, size: int, seed: int, *, solved_after: int | None, first_treasure: int | None
+    run_dir: Path, method: str, size: int, seed: int, *, solved_after: int | None, first_treasure: int | None,
+    experiment: dict | None = None,
 ) -> Path:
     """A 50-episode DeepSea-``size`` run, solved once ``solved_after`` episodes had finished, that
-    reaches the treasure from episode ``first_treasure`` on (``None``: never)."""
+    reaches the treasure from episode ``first_treasure`` on (``None``: never); ``experiment``: more summary fields."""
     returns = np.full(50, -1.0)
     if first_treasure is not None:
         returns[first_treasure - 1 :] = 0.99
@@ -20,7 +21,7 @@ def write_deepsea_run(
     solved_at = None if solved_after is None else 200 * solved_after + 1
     write_run(
         run_dir, method, seed, returns, env=f"DeepSea-{size}", threshold=0.5,
-        experiment={"solved": solved_after is not None, "solved_at_frames": solved_at},
+        experiment={"solved": solved_after is not None, "solved_at_frames": solved_at, **(experiment or {})},
     )
     episodes = run_dir / "episodes.csv"  # write_run flags the goal on MountainCar only: flag the treasure here
     header, *rows = episodes.read_text().splitlines()
@@ -101,3 +102,17 @@ def test_growth_is_the_loglog_slope_over_the_sizes_half_the_seeds_solved(tmp_pat
     results = (tmp_path / "out" / "results.md").read_text()
     assert table_row(results, "### Growth with N", "dqn+diagonal")[1:] == ["2.00", "10, 20, 30"]
     assert table_row(results, "### Growth with N", "dqn+egreedy")[1:] == ["–", "–"]
+
+
+def test_a_method_run_with_two_presets_draws_one_series_per_preset(tmp_path):
+    """Each size has its own config_id; the preset's tag, not the config, joins a series across sizes."""
+    for tag, episodes in (("deepsea_learned", {10: 20, 20: 40}), ("deepsea_categorical", {10: 10, 20: 15})):
+        for size, solved_after in episodes.items():
+            write_deepsea_run(
+                tmp_path / "runs" / tag / str(size), "dqn+diagonal", size, 0, solved_after=solved_after, first_treasure=1,
+                experiment={"tag": tag, "config_id": f"{tag}-{size}"},
+            )
+    main([str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+    results = (tmp_path / "out" / "results.md").read_text()
+    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_learned]")[1:] == ["1/1, 20 [20, 20]", "1/1, 40 [40, 40]"]
+    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_categorical]")[1:] == ["1/1, 10 [10, 10]", "1/1, 15 [15, 15]"]

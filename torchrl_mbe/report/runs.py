@@ -290,9 +290,12 @@ def deepsea_size(env: str) -> int | None:
 
 
 def deepsea_scaling(runs: Sequence[Run]) -> dict[str, dict[int, list[Run]]]:
-    """DeepSea's learning runs by group label (see :func:`group_runs`, per size) and size N, sizes ascending.
+    """DeepSea's learning runs by series and size N, sizes ascending; empty unless two or more sizes were run.
 
-    Empty unless the runs hold DeepSea at two or more sizes.
+    A series is a method run with one preset (``tag``) at every size, labelled by the method,
+    or ``method [tag]`` where the method ran with several presets: each size has a config of its
+    own, so :func:`group_runs`' ``config_id`` cannot join sizes. Where one series holds several
+    configs at one size, that size's runs are split by :func:`group_runs`' labels instead.
     """
     by_size: dict[int, list[Run]] = {}
     for run in runs:
@@ -301,10 +304,16 @@ def deepsea_scaling(runs: Sequence[Run]) -> dict[str, dict[int, list[Run]]]:
             by_size.setdefault(size, []).append(run)
     if len(by_size) < 2:
         return {}
+    tags: dict[str, set] = {}
+    for run in (run for size_runs in by_size.values() for run in size_runs):
+        tags.setdefault(run.method, set()).add(run.tag)
     scaling: dict[str, dict[int, list[Run]]] = {}
     for size in sorted(by_size):
-        for label, group in group_runs(by_size[size]).items():
-            scaling.setdefault(label, {})[size] = group
+        groups = group_runs(by_size[size])
+        series = {label: group[0].method if len(tags[group[0].method]) == 1 else f"{group[0].method} [{group[0].tag}]" for label, group in groups.items()}
+        for label, group in groups.items():
+            one_config = list(series.values()).count(series[label]) == 1
+            scaling.setdefault(series[label] if one_config else label, {})[size] = group
     return dict(sorted(scaling.items(), key=lambda item: method_key(item[0])))
 
 
