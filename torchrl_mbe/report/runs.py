@@ -30,7 +30,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -325,17 +325,17 @@ class Growth:
     sizes: tuple[int, ...]
 
 
-def deepsea_growth(by_size: dict[int, list[Run]]) -> Growth | None:
-    """The log-log slope of the median episodes to solved (over the seeds that solved) against N.
+def deepsea_growth(by_size: dict[int, list[Run]], episode_of: Callable[[Run], int | None] = lambda run: run.episodes_to_solved) -> Growth | None:
+    """The log-log slope against N of the median of ``episode_of`` (episodes to solved by default) over the seeds that got there.
 
-    Fitted over the sizes where at least half of the seeds solved, so that a size that one
-    lucky seed solved does not bend the line; ``None`` where fewer than two sizes qualify.
+    Fitted over the sizes where at least half of the seeds got there, so that a size that one
+    lucky seed reached does not bend the line; ``None`` where fewer than two sizes qualify.
     """
     medians = {}
     for size, runs in by_size.items():
-        solved = [run.episodes_to_solved for run in runs if run.episodes_to_solved is not None]
-        if solved and 2 * len(solved) >= len(runs):
-            medians[size] = float(np.median(solved))
+        reached = [episode for episode in map(episode_of, runs) if episode is not None]
+        if reached and 2 * len(reached) >= len(runs):
+            medians[size] = float(np.median(reached))
     exponent = loglog_slope(list(medians), list(medians.values()))
     return None if exponent is None else Growth(exponent, tuple(medians))
 
