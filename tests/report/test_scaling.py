@@ -105,6 +105,15 @@ def test_growth_is_the_loglog_slope_over_the_sizes_half_the_seeds_solved(tmp_pat
     assert table_row(results, "### Growth with N", "dqn+egreedy")[1:] == ["–", "–", "–", "–"]
 
 
+def test_equal_medians_at_every_size_grow_as_n_to_the_zero_not_minus_zero(tmp_path):
+    """The categorical preset solves N=10 and N=20 in a median of 400 episodes each: a flat line reads 0.00."""
+    for size in (10, 20):
+        write_deepsea_run(tmp_path / "runs" / str(size), "dqn+diagonal", size, 0, solved_after=40, first_treasure=7)
+    main([str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
+    results = (tmp_path / "out" / "results.md").read_text()
+    assert table_row(results, "### Growth with N", "dqn+diagonal")[1:] == ["0.00", "10, 20", "0.00", "10, 20"]
+
+
 def test_a_method_run_with_two_presets_draws_one_series_per_preset(tmp_path):
     """Each size has its own config_id; the preset's tag, not the config, joins a series across sizes."""
     for tag, episodes in (("deepsea_learned", {10: 20, 20: 40}), ("deepsea_categorical", {10: 10, 20: 15})):

@@ -24,6 +24,8 @@ Coverage, two measures:
 from __future__ import annotations
 
 import itertools
+import math
+import statistics
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -236,10 +238,11 @@ def loglog_slope(sizes: Sequence[float], values: Sequence[float]) -> float | Non
     Examples:
         >>> round(loglog_slope([10, 20, 40], [100, 400, 1600]), 6)
         2.0
+        >>> loglog_slope([10, 20], [400, 400])
+        0.0
         >>> loglog_slope([10], [100]) is None
         True
     """
     if len(set(sizes)) < 2:
         return None
-    slope, _ = np.polyfit(np.log(np.asarray(sizes, dtype=np.float64)), np.log(np.asarray(values, dtype=np.float64)), 1)
-    return float(slope)
+    return statistics.linear_regression([math.log(size) for size in sizes], [math.log(value) for value in values]).slope
