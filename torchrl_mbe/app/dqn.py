@@ -140,18 +140,25 @@ class DQNAgent:
         """The updates that the new ``batch`` pays for (``frames`` collected in all, the batch included).
 
         The explorer sees the batch and takes its own updates; after
-        ``learning_starts`` frames eps anneals and the Q-network takes
-        ``updates_per_frame`` steps per new frame. Returns a row of the updates
-        table every ``log_every_updates`` Q updates. In a population, ``frames``
-        and the schedule count each member's frames, and a row's losses are
-        lists (one per member).
+        ``learning_starts`` frames eps anneals and the Q-network takes its
+        updates (:meth:`learn_q`). In a population, ``frames`` and the schedule
+        count each member's frames, and a row's losses are lists (one per member).
         """
-        new_frames, settings = batch.numel() // self.members, self.settings
+        new_frames = batch.numel() // self.members
         self.explorer.observe(batch)
         self.explorer.learn(replay_buffer, frames, new_frames)
+        if frames >= self.settings.learning_starts:
+            self.explorer.anneal(min(new_frames, frames - self.settings.learning_starts))
+        return self.learn_q(replay_buffer, frames, new_frames)
+
+    def learn_q(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> list[dict]:
+        """The Q updates that ``new_frames`` more frames pay for: ``updates_per_frame`` each after ``learning_starts``.
+
+        Returns a row of the updates table every ``log_every_updates`` Q updates.
+        """
+        settings = self.settings
         if frames < settings.learning_starts:
             return []
-        self.explorer.anneal(min(new_frames, frames - settings.learning_starts))
         for group in self.q_step.optimizer.param_groups:
             group["lr"] = q_learning_rate(settings, frames)
         self.q_update_credit += new_frames * settings.updates_per_frame
