@@ -47,7 +47,11 @@ def main() -> None:
     solved_episodes = []
     for member in range(stored.shape[1]):
         seed = checkpoint["config"]["seed"] + member
-        transitions, treasure_path, first_treasure = member_stream(stored[:, member], cfg.env.size)
+        transitions = stored[:, member]
+        treasure_path, first_treasure = treasure_episodes(transitions, cfg.env.size)
+        if treasure_path is None:
+            print(f"seed {seed}: no treasure in its transitions, nothing for a greedy policy to follow", flush=True)
+            continue
         for repeat in range(args.repeats):
             started = time.perf_counter()
             solved, dead = replay(cfg, seed, transitions, treasure_path, torch_seed=seed + 1000 * repeat)
@@ -85,18 +89,18 @@ def stored_transitions(checkpoint: dict) -> TensorDictBase:
     return storage[: buffer["size"]]
 
 
-def member_stream(transitions: TensorDictBase, size: int) -> tuple[TensorDictBase, torch.Tensor, int | None]:
-    """A member's transitions, the actions of its treasure episodes along the diagonal, and the first one's episode."""
+def treasure_episodes(transitions: TensorDictBase, size: int) -> tuple[torch.Tensor | None, int | None]:
+    """The actions of a member's treasure episodes along the diagonal, and the first one's episode (``None`` without one)."""
     episodes = transitions.reshape(-1, size)  # one env: whole episodes one after another
     cells = episodes["observation"].argmax(-1)
     on_diagonal = (cells == torch.arange(size) * (size + 1)).all(-1)
     treasure = on_diagonal & (episodes["next", "reward"][:, -1, 0] > 0.5)
     if not treasure.any():
-        return transitions, None, None
-    return transitions, episodes["action"][treasure][0].argmax(-1), treasure.nonzero()[0].item() + 1
+        return None, None
+    return episodes["action"][treasure][0].argmax(-1), treasure.nonzero()[0].item() + 1
 
 
-def replay(cfg: DictConfig, seed: int, transitions: TensorDictBase, treasure_path: torch.Tensor | None, *, torch_seed: int) -> tuple[int | None, int]:
+def replay(cfg: DictConfig, seed: int, transitions: TensorDictBase, treasure_path: torch.Tensor, *, torch_seed: int) -> tuple[int | None, int]:
     """Trains a fresh Q side on ``transitions`` batch by batch; returns the episode its greedy policy first takes the treasure, and its dead units."""
     torch.manual_seed(torch_seed)
     agent = build_dqn_agent(cfg, make_run_env(cfg, num_envs=1, seed=seed))
@@ -108,7 +112,7 @@ def replay(cfg: DictConfig, seed: int, transitions: TensorDictBase, treasure_pat
         if frames - held_back > len(replay_buffer):
             replay_buffer.extend(transitions[len(replay_buffer) : frames - held_back])
         agent.learn_q(replay_buffer, frames, batch_frames)
-        if treasure_path is not None and crossed(frames, batch_frames, cfg.eval.every_frames) and takes_treasure(agent, treasure_path):
+        if crossed(frames, batch_frames, cfg.eval.every_frames) and takes_treasure(agent, treasure_path):
             solved = frames // size
             break
     return solved, dead_units(agent, transitions["observation"])
