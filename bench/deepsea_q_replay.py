@@ -39,6 +39,8 @@ def main() -> None:
     parser.add_argument("overrides", nargs="*", help="config overrides of the replayed Q side, e.g. algo.lr=5e-4")
     parser.add_argument("--repeats", type=int, default=1, help="initializations per member (torch seeds seed, seed+1000, ...)")
     args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error(f"--repeats {args.repeats}: expected at least 1 initialization per member")
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # it announces every storage it initializes
     checkpoint = read_deepsea_checkpoint(parser, Path(args.checkpoint))
     cfg = replay_config(parser, checkpoint["config"], args.overrides)
