@@ -55,3 +55,15 @@ def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line
     with pytest.raises(ConfigError, match=r"buffer.size=20000: 5 x 20,000 transitions of 2,500-feature observations take about 2.8 GiB, more than the 1.0 GiB available"):
         train(cfg, tmp_path)
     assert not (tmp_path / "seed0" / "episodes.csv").exists()
+
+
+def test_a_replay_buffer_whose_checkpoints_do_not_fit_on_disk_is_refused_in_one_line_before_training(compose_default, tmp_path, monkeypatch):
+    # A checkpoint keeps the whole preallocated buffer: DeepSea-50's default run writes 3 GB at its first one.
+    from torchrl_mbe.app import ConfigError, replay
+
+    monkeypatch.setattr(replay, "_free_disk_bytes", lambda path: 2**30)  # 1 GiB free
+    cfg = compose_default("experiment=deepsea_oracle", "env.size=50", "buffer.size=20000", "train.max_frames=100")
+    run_dir = tmp_path / "run"
+    with pytest.raises(ConfigError, match=rf"buffer.size=20000: 20,000 transitions .* take about 0.6 GiB, and every checkpoint keeps them: writing one needs 1.1 GiB, more than the 1.0 GiB free for {run_dir}"):
+        train(cfg, run_dir)
+    assert not (run_dir / "episodes.csv").exists()

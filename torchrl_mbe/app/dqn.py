@@ -24,7 +24,7 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
 from torchrl_mbe.app.optim import GradientStep, adam
-from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_memory, make_replay_buffer
+from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_fits, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.app.run import (
     StopOnInterrupt,
@@ -47,7 +47,7 @@ __all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "num_members", "train_d
 def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains DQN with the configured exploration and returns the run's summary."""
     env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)
-    check_replay_memory(cfg.buffer, env, 1, cfg.device)
+    check_replay_fits(cfg.buffer, env, 1, cfg.device, run_dir)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
     # Built before a resume restores torch's generator: checking the policy draws from it.

@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 from torchrl_mbe.app.config import ConfigError, seeds_name
 from torchrl_mbe.app.dqn import DQNAgent, build_dqn_agent
 from torchrl_mbe.app.loggers import RunLogger
-from torchrl_mbe.app.replay import ReplayTransitions, check_replay_memory
+from torchrl_mbe.app.replay import ReplayTransitions, check_replay_fits
 from torchrl_mbe.app.rollout import CollectorState, EnvState
 from torchrl_mbe.app.run import (
     CHECKPOINT_FORMAT,
@@ -71,7 +71,7 @@ def train_dqn_population(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains ``cfg.population`` DQN agents together; returns the population's summary (each member's in ``"members"``)."""
     members = cfg.population
     env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)  # (num_envs, M)
-    check_replay_memory(cfg.buffer, env, members, cfg.device)
+    check_replay_fits(cfg.buffer, env, members, cfg.device, run_dir)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = PopulationReplayBuffer(cfg.buffer.size, members, device=cfg.device)
     # Built before a resume restores torch's generator: checking the policy draws from it.

@@ -1,6 +1,9 @@
 """Replay for DQN: the buffer, and the transitions stored in it (n-step, through TorchRL)."""
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
@@ -9,8 +12,9 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedR
 from torchrl.envs import EnvBase, MultiStepTransform
 
 from torchrl_mbe.app.settings import ConfigError
+from torchrl_mbe.rundir import CHECKPOINT
 
-__all__ = ["SUCCESSOR_KEY", "check_replay_memory", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
+__all__ = ["SUCCESSOR_KEY", "check_replay_fits", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
@@ -19,24 +23,37 @@ SUCCESSOR_KEY = "successor_observation"
 OBSERVATIONS_PER_TRANSITION = 3  # the observation, the one n steps on, and the one-step successor (SUCCESSOR_KEY)
 
 
-def check_replay_memory(buffer: DictConfig, env: EnvBase, members: int, device: str) -> None:
-    """Refuses, in one line, a replay buffer in CPU memory whose observations of ``env`` alone exceed the memory available now.
+def check_replay_fits(buffer: DictConfig, env: EnvBase, members: int, device: str, run_dir: Path) -> None:
+    """Refuses, in one line, a replay buffer whose observations of ``env`` exceed the CPU memory available now,
+    or whose checkpoints would not fit on ``run_dir``'s disk.
 
     TorchRL's ``LazyTensorStorage`` allocates its whole capacity at the first
-    ``extend``: too large a buffer (DeepSea at N=50 holds 2,500 features a state)
-    would otherwise be killed for memory after its first batch.
+    ``extend`` and a checkpoint keeps all of it (DeepSea at N=50: 3 GB at the
+    default size), so such a run would be killed after its first batch, or fail at
+    its first checkpoint. A checkpoint is written beside the previous one, so a run
+    that has none yet needs room for two.
     """
-    available = _available_memory_bytes() if torch.device(device).type == "cpu" else None
-    if available is None:
-        return
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
     needed = OBSERVATIONS_PER_TRANSITION * 4 * observation_size * buffer.size * members
-    if needed > available:
-        kept = f"{members} x {buffer.size:,}" if members > 1 else f"{buffer.size:,}"
+    kept = f"{members} x {buffer.size:,}" if members > 1 else f"{buffer.size:,}"
+    transitions = f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about {needed / 2**30:.1f} GiB"
+    available = _available_memory_bytes() if torch.device(device).type == "cpu" else None
+    if available is not None and needed > available:
+        raise ConfigError(f"{transitions}, more than the {available / 2**30:.1f} GiB available; lower buffer.size (or population).")
+    on_disk = needed if (run_dir / CHECKPOINT).exists() else 2 * needed
+    free = _free_disk_bytes(run_dir)
+    if on_disk > free:
         raise ConfigError(
-            f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about "
-            f"{needed / 2**30:.1f} GiB, more than the {available / 2**30:.1f} GiB available; lower buffer.size (or population)."
+            f"{transitions}, and every checkpoint keeps them: writing one needs {on_disk / 2**30:.1f} GiB, "
+            f"more than the {free / 2**30:.1f} GiB free for {run_dir}; free disk space or lower buffer.size (or population)."
         )
+
+
+def _free_disk_bytes(path: Path) -> int:
+    """Free bytes on the disk that holds ``path`` (its nearest existing parent, before the run creates it)."""
+    while not path.exists():
+        path = path.parent
+    return shutil.disk_usage(path).free
 
 
 def _available_memory_bytes() -> int | None:
