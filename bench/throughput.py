@@ -6,6 +6,7 @@
     python bench/throughput.py --threads 2     # torch intra-op threads (default 1, as the app)
     python bench/throughput.py --only training breakdown   # some sections only
     python bench/throughput.py --only population           # populations (population=N) against single runs
+    python bench/throughput.py --only gym_batch            # LunarLander batches: GymBatchEnv against SerialEnv
 
 Every figure is the median over ``repeats`` timed blocks (``time.perf_counter``)
 after untimed warm-up calls; variants that are compared are timed in
@@ -21,6 +22,7 @@ import datetime
 import functools
 import itertools
 import json
+import math
 import os
 import platform
 import statistics
@@ -44,7 +46,18 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import OneHot, ReplayBuffer
-from torchrl.envs import ExplorationType, set_exploration_type
+from torchrl.envs import (
+    Compose,
+    DoubleToFloat,
+    ExplorationType,
+    GymEnv,
+    InitTracker,
+    RewardSum,
+    SerialEnv,
+    StepCounter,
+    TransformedEnv,
+    set_exploration_type,
+)
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
@@ -57,6 +70,7 @@ from torchrl_mbe.app import register_configs, train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
 from torchrl_mbe.app.dqn import fit_q_input_norm, update_q
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, ReplayTransitions, make_replay_buffer
+from torchrl_mbe.envs import GymBatchEnv
 from torchrl_mbe.envs.registry import resolve_env_id
 
 RESULTS_DIR = Path(__file__).parent / "results"
@@ -159,17 +173,49 @@ def egreedy_policy(actor: QValueActor, spec: OneHot, eps: float = 1.0) -> Tensor
 
 def bench_gym_stepping(budget: Budget) -> list[Measurement]:
     """(a) gymnasium's MountainCar-v0 stepped with random actions: the physical reference."""
-    env = gym.make("MountainCar-v0")
+    step = gymnasium_random_step("MountainCar-v0")
+    timing = seconds_per_call({"step": step}, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls * 20)
+    return [Measurement("gym", "gymnasium MountainCar-v0 env.step", 1 / timing["step"], "steps/s")]
+
+
+def gymnasium_random_step(env_id: str) -> Callable[[], None]:
+    """One step of ``gym.make(env_id)`` (seeded 0) with a random action, resetting at the episode's end."""
+    env = gym.make(env_id)
     env.reset(seed=0)
-    actions = itertools.cycle(np.random.default_rng(0).integers(3, size=1000).tolist())
+    actions = itertools.cycle(np.random.default_rng(0).integers(env.action_space.n, size=1000).tolist())
 
     def step() -> None:
         _, _, terminated, truncated, _ = env.step(next(actions))
         if terminated or truncated:
             env.reset()
 
-    timing = seconds_per_call({"step": step}, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls * 20)
-    return [Measurement("gym", "gymnasium MountainCar-v0 env.step", 1 / timing["step"], "steps/s")]
+    return step
+
+
+def bench_gym_batch(budget: Budget) -> list[Measurement]:
+    """(i) LunarLander-v3 with random actions, as a single run (8 copies) and a 5-member population ((8, 5)) step it.
+
+    ``GymBatchEnv`` (make_env's gym backend) against TorchRL's ``SerialEnv`` of
+    ``GymEnv`` copies (the same episodes), both under make_env's transforms, and
+    gymnasium's own step, one env at a time, as the floor.
+    """
+    steps = {"gymnasium LunarLander-v3 env.step": gymnasium_random_step("LunarLander-v3")}
+    copies = {"gymnasium LunarLander-v3 env.step": 1}
+    for batch_shape in ((8,), (8, 5)):
+        num_copies = math.prod(batch_shape)
+        serial = SerialEnv(num_copies, functools.partial(GymEnv, "LunarLander-v3"))
+        for name, base_env in (("SerialEnv of GymEnv", serial), ("GymBatchEnv", GymBatchEnv("LunarLander-v3", batch_shape))):
+            env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
+            env.set_seed(0)
+            label = f"{name}, {num_copies} copies {tuple(env.batch_size)}"
+            steps[label], copies[label] = functools.partial(random_step_and_maybe_reset, env, [env.reset()]), num_copies
+    timing = seconds_per_call(steps, warmup=budget.warmup // 10, repeats=budget.repeats, calls=budget.calls // 5)
+    return [Measurement("gym_batch", name, copies[name] / seconds, "env-steps/s") for name, seconds in timing.items()]
+
+
+def random_step_and_maybe_reset(env, carrier: list[TensorDictBase]) -> None:
+    """One step of every copy of ``env`` with random actions, from and into ``carrier[0]``, resetting the done copies."""
+    _, carrier[0] = env.step_and_maybe_reset(env.rand_action(carrier[0]))
 
 
 def call_on_next(policy: TensorDictModuleBase, inputs: Iterator[TensorDictBase]) -> TensorDictBase:
@@ -241,7 +287,7 @@ def planned_step_parts(budget: Budget, spec: OneHot, low: torch.Tensor, high: to
 
 
 def bench_collection(budget: Budget) -> list[Measurement]:
-    """(c) Collector env-steps/s on the torch MountainCar with N envs, and a GymEnv / SerialEnv reference."""
+    """(c) Collector env-steps/s on the torch MountainCar with N envs, and the gym backend (a GymEnv, a GymBatchEnv)."""
     setups = [("torch", 1), ("torch", 8), ("torch", 64), ("torch", 256), ("torch", 1024), ("gym", 1), ("gym", 8)]
     collectors, next_batch, frames_per_batch = [], {}, {}
     for (backend, num_envs), policy_name in itertools.product(setups, ("model-based", "egreedy")):
@@ -536,6 +582,7 @@ def plain_buffer_of(buffer: ReplayBuffer, gamma: float) -> PlainReplayBuffer:
 
 SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
     "gym": bench_gym_stepping,
+    "gym_batch": bench_gym_batch,
     "exploration": bench_exploration_step,
     "collection": bench_collection,
     "training": bench_training_loop,

@@ -2,11 +2,11 @@ from __future__ import annotations
 
 import torch
 from torchrl.collectors import Collector
-from torchrl.envs import GymEnv, SerialEnv
+from torchrl.envs import GymEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_mbe import make_env
-from torchrl_mbe.envs import BatchedCartPoleEnv
+from torchrl_mbe.envs import BatchedCartPoleEnv, GymBatchEnv
 
 BALANCE = torch.tensor([0.5, 1.0, 10.0, 2.0], dtype=torch.float64)
 """Push towards ``BALANCE @ state > 0``: keeps the pole up for the whole 500-step limit."""
@@ -79,4 +79,4 @@ def test_make_env_steps_several_cartpoles_in_torch_and_one_through_gymnasium():
     assert isinstance(env.base_env, BatchedCartPoleEnv) and env.batch_size == (4,)
     check_env_specs(env)
     assert isinstance(make_env("cartpole").base_env, GymEnv)
-    assert isinstance(make_env("cartpole", num_envs=2, backend="gym").base_env, SerialEnv)
+    assert isinstance(make_env("cartpole", num_envs=2, backend="gym").base_env, GymBatchEnv)

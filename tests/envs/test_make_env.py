@@ -63,4 +63,4 @@ def test_a_gymnasium_batch_shape_is_a_grid_of_independent_copies_each_playing_it
     episodes = first_episodes(rollout.reshape(6, -1))
     ends = rollout["next", "done"].reshape(6, -1).int().argmax(-1)
     assert [episode.length for episode in episodes] == (ends + 1).tolist()  # each copy's own first done, whatever the others do
-    assert len(set(ends.tolist())) > 1  # so copies that finished first kept stepping into new episodes, and were ignored
+    assert len(set(ends.tolist())) > 1  # so copies that finished first waited for the last

@@ -7,11 +7,11 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
-from torchrl.envs import GymEnv, SerialEnv
+from torchrl.envs import GymEnv
 from torchrl.modules import MLP, QValueActor
 
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
-from torchrl_mbe.envs import BatchedMountainCarEnv
+from torchrl_mbe.envs import BatchedMountainCarEnv, GymBatchEnv
 
 
 def pump_energy(observation: torch.Tensor) -> torch.Tensor:
@@ -108,9 +108,9 @@ def test_collector_truncates_long_episodes():
 
 def test_make_env_batches_other_tasks_serially_and_rejects_bad_requests():
     assert isinstance(make_env("mountaincar").base_env, GymEnv)  # single env unchanged
-    assert isinstance(make_env("mountaincar", num_envs=3, backend="gym").base_env, SerialEnv)
+    assert isinstance(make_env("mountaincar", num_envs=3, backend="gym").base_env, GymBatchEnv)
     lunarlander = make_env("lunarlander", num_envs=2, seed=0)  # Box2D: no torch implementation
-    assert isinstance(lunarlander.base_env, SerialEnv) and lunarlander.rollout(3).shape == (2, 3)
+    assert isinstance(lunarlander.base_env, GymBatchEnv) and lunarlander.rollout(3).shape == (2, 3)
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         make_env("mountaincar", num_envs=0)
     with pytest.raises(ValueError, match="No torch implementation of LunarLander-v3"):

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torchrl.envs import EnvBase, SerialEnv
+from torchrl.envs import EnvBase
 
 from torchrl_mbe.envs.registry import task_of
 
@@ -84,11 +84,9 @@ def first_episodes(rollout: TensorDictBase) -> list[Episode]:
 def play_first_episodes(env: EnvBase, policy: TensorDictModuleBase, max_steps: int = 100_000) -> TensorDictBase:
     """A rollout of ``policy`` in ``env``, shape ``(*env.batch_size, time)``, long enough for every copy to finish its first episode.
 
-    Where the env can pause a copy (``env.rollout(break_when_all_done=True)``'s partial
-    steps), finished copies wait. A nested ``SerialEnv`` (:func:`~torchrl_mbe.make_env`'s
-    gymnasium ``(num_envs, M)`` batch) steps whole workers only, so there every copy
-    keeps stepping, into new episodes, until the last first episode ends; both read
-    the same through :func:`first_episodes`.
+    Copies that have finished wait (``env.rollout(break_when_all_done=True)``'s
+    partial steps, which every env of :func:`~torchrl_mbe.make_env` takes), so
+    :func:`first_episodes` reads one episode per copy.
 
     Examples:
         >>> from torchrl.envs.utils import RandomPolicy
@@ -98,17 +96,7 @@ def play_first_episodes(env: EnvBase, policy: TensorDictModuleBase, max_steps: i
         >>> rollout.shape[:2], len(first_episodes(rollout.reshape(6, -1)))
         (torch.Size([2, 3]), 6)
     """
-    base_env = getattr(env, "base_env", env)
-    if not (isinstance(base_env, SerialEnv) and base_env.batch_dims > 1):
-        return env.rollout(max_steps=max_steps, policy=policy, break_when_any_done=False, break_when_all_done=True)
-    steps, tensordict = [], env.reset()
-    finished = torch.zeros(env.batch_size, dtype=torch.bool, device=env.device)
-    while not finished.all() and len(steps) < max_steps:
-        tensordict, next_tensordict = env.step_and_maybe_reset(policy(tensordict))
-        steps.append(tensordict)
-        finished |= tensordict["next", "done"].reshape(env.batch_size)
-        tensordict = next_tensordict
-    return torch.stack(steps, dim=env.batch_dims)
+    return env.rollout(max_steps=max_steps, policy=policy, break_when_any_done=False, break_when_all_done=True)
 
 
 def _episodes_ending_at(last_steps: TensorDictBase) -> list[Episode]:

@@ -2,12 +2,12 @@
 from __future__ import annotations
 
 import math
-from functools import partial
 from typing import Any, Literal
 
 import torch
-from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymEnv, InitTracker, RewardSum, StepCounter, TransformedEnv
 
+from torchrl_mbe.envs.gym_batch import GymBatchEnv
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 
 __all__ = ["make_env"]
@@ -30,10 +30,11 @@ def make_env(
 
     Backends:
 
-    * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a ``SerialEnv`` of them
-      (batch size ``(num_envs,)``; a shape ``(num_envs, M)`` nests a ``SerialEnv``
-      of ``M`` in each of ``num_envs``). Not a ``ParallelEnv``: a classic-control step
-      costs microseconds, far less than the inter-process traffic, so worker
+    * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a
+      :class:`~torchrl_mbe.envs.gym_batch.GymBatchEnv` of that batch shape (the
+      episodes a ``SerialEnv`` of ``GymEnv`` copies plays, stepped without a
+      TorchRL wrapper per copy). Not a ``ParallelEnv``: a classic-control or Box2D
+      step costs microseconds, far less than the inter-process traffic, so worker
       processes do not pay off (and this project targets 2-core machines).
     * ``"torch"``: the copies step together as tensor operations (the
       registry's ``Task.torch_env``:
@@ -110,10 +111,7 @@ def make_env(
 
 
 def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str) -> EnvBase:
-    """``GymEnv`` copies in nested ``SerialEnv``\ s, one level per dimension of ``batch_shape`` (one ``GymEnv`` for ``(1,)``)."""
+    """One ``GymEnv`` for ``(1,)``, else a ``GymBatchEnv`` of ``batch_shape``."""
     if batch_shape == (1,):
         return GymEnv(env_id, device=device)
-    make = partial(GymEnv, env_id, device=device)
-    for size in reversed(batch_shape):
-        make = partial(SerialEnv, size, make)
-    return make()
+    return GymBatchEnv(env_id, batch_shape, device=device)
