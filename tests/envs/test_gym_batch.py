@@ -37,7 +37,7 @@ def random_actions(env, seed: int = 1):
     return policy
 
 
-@pytest.mark.parametrize("env_id", ["LunarLander-v3", "CartPole-v1"])
+@pytest.mark.parametrize("env_id", ["LunarLander-v3", "CartPole-v1", "FrozenLake-v1"])  # FrozenLake: one-hot observations
 @pytest.mark.parametrize("batch_shape", [(3,), (2, 3)], ids=str)
 def test_steps_and_partial_resets_equal_a_serial_env_of_gym_envs(env_id, batch_shape):
     reference, env = seeded(serial_gym_envs(env_id, batch_shape)), seeded(GymBatchEnv(env_id, batch_shape))

@@ -58,8 +58,7 @@ class GymBatchEnv(EnvBase):
             setattr(self, spec, getattr(reference, spec).expand(*batch_size).to(self.device))
         reference.close()
         self.envs = [gym.make(env_id) for _ in range(math.prod(batch_size))]
-        observation = self.observation_spec["observation"]
-        self._observations = np.zeros((len(self.envs), *observation.shape[len(batch_size):]), dtype=self.envs[0].observation_space.dtype)
+        self._observations = [None] * len(self.envs)  # each copy's last gymnasium observation
 
     def _set_seed(self, seed: int | None) -> None:
         """Not used: :meth:`set_seed` seeds each copy with a seed of its own."""
@@ -113,9 +112,9 @@ class GymBatchEnv(EnvBase):
             self._observations[index], _ = self.envs[index].reset(seed=seed)
 
     def _observation_tensor(self) -> torch.Tensor:
-        """The copies' last observations, ``(*batch_size, ...)``, in the spec's dtype (a copy)."""
-        observation = torch.from_numpy(self._observations.copy()).to(self.device)
-        return observation.view(*self.batch_size, *observation.shape[1:]).to(self.observation_spec["observation"].dtype)
+        """The copies' last observations as the spec encodes them (a ``Discrete`` space one-hot), ``(*batch_size, ...)``."""
+        observations = np.asarray(self._observations)
+        return self.observation_spec["observation"].encode(observations.reshape(*self.batch_size, *observations.shape[1:]))
 
     def _flags(self, flags: np.ndarray) -> torch.Tensor:
         return torch.from_numpy(flags).to(self.device).view(*self.batch_size, 1)
