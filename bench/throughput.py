@@ -46,18 +46,7 @@ from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import OneHot, ReplayBuffer
-from torchrl.envs import (
-    Compose,
-    DoubleToFloat,
-    ExplorationType,
-    GymEnv,
-    InitTracker,
-    RewardSum,
-    SerialEnv,
-    StepCounter,
-    TransformedEnv,
-    set_exploration_type,
-)
+from torchrl.envs import EnvBase, ExplorationType, GymEnv, SerialEnv, TransformedEnv, set_exploration_type
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
@@ -71,6 +60,7 @@ from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
 from torchrl_mbe.app.dqn import fit_q_input_norm, update_q
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.envs import GymBatchEnv
+from torchrl_mbe.envs.make import dqn_transforms
 from torchrl_mbe.envs.registry import resolve_env_id
 
 RESULTS_DIR = Path(__file__).parent / "results"
@@ -205,17 +195,23 @@ def bench_gym_batch(budget: Budget) -> list[Measurement]:
         num_copies = math.prod(batch_shape)
         serial = SerialEnv(num_copies, functools.partial(GymEnv, "LunarLander-v3"))
         for name, base_env in (("SerialEnv of GymEnv", serial), ("GymBatchEnv", GymBatchEnv("LunarLander-v3", batch_shape))):
-            env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
+            env = TransformedEnv(base_env, dqn_transforms())
             env.set_seed(0)
             label = f"{name}, {num_copies} copies {tuple(env.batch_size)}"
-            steps[label], copies[label] = functools.partial(random_step_and_maybe_reset, env, [env.reset()]), num_copies
+            steps[label], copies[label] = batch_random_step(env), num_copies
     timing = seconds_per_call(steps, warmup=budget.warmup // 10, repeats=budget.repeats, calls=budget.calls // 5)
     return [Measurement("gym_batch", name, copies[name] / seconds, "env-steps/s") for name, seconds in timing.items()]
 
 
-def random_step_and_maybe_reset(env, carrier: list[TensorDictBase]) -> None:
-    """One step of every copy of ``env`` with random actions, from and into ``carrier[0]``, resetting the done copies."""
-    _, carrier[0] = env.step_and_maybe_reset(env.rand_action(carrier[0]))
+def batch_random_step(env: EnvBase) -> Callable[[], None]:
+    """One step of every copy of ``env`` with random actions, resetting the copies that are done."""
+    carrier = env.reset()
+
+    def step() -> None:
+        nonlocal carrier
+        _, carrier = env.step_and_maybe_reset(env.rand_action(carrier))
+
+    return step
 
 
 def call_on_next(policy: TensorDictModuleBase, inputs: Iterator[TensorDictBase]) -> TensorDictBase:

@@ -5,10 +5,11 @@ from functools import partial
 
 import pytest
 import torch
-from torchrl.envs import Compose, DoubleToFloat, GymEnv, InitTracker, RewardSum, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import GymEnv, SerialEnv, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_mbe.envs import GymBatchEnv
+from torchrl_mbe.envs.make import dqn_transforms
 
 
 def serial_gym_envs(env_id: str, batch_shape: tuple[int, ...]) -> SerialEnv:
@@ -20,7 +21,7 @@ def serial_gym_envs(env_id: str, batch_shape: tuple[int, ...]) -> SerialEnv:
 
 
 def seeded(base_env, seed: int = 5) -> TransformedEnv:
-    env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
+    env = TransformedEnv(base_env, dqn_transforms())  # as make_env wraps its envs
     env.set_seed(seed)
     return env
 

@@ -73,32 +73,17 @@ class GymBatchEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         self._reset_copies(self._masked(tensordict, "_reset"))
-        flag = torch.zeros(*self.batch_size, 1, dtype=torch.bool, device=self.device)
-        return TensorDict(
-            {"observation": self._observation_tensor(), "done": flag, "terminated": flag.clone(), "truncated": flag.clone()},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        not_done = np.zeros(len(self.envs), dtype=bool)
+        return self._output(not_done, not_done)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        copies = self._masked(tensordict, "_step")
         actions = tensordict.get("action").reshape(len(self.envs), -1).argmax(-1).tolist()
         rewards = np.zeros(len(self.envs))
         terminated, truncated = np.zeros(len(self.envs), dtype=bool), np.zeros(len(self.envs), dtype=bool)
-        for index in copies:
+        for index in self._masked(tensordict, "_step"):
             self._observations[index], rewards[index], terminated[index], truncated[index], _ = self.envs[index].step(actions[index])
-        terminated, truncated = self._flags(terminated), self._flags(truncated)
-        return TensorDict(
-            {
-                "observation": self._observation_tensor(),
-                "reward": torch.as_tensor(rewards, dtype=torch.float32, device=self.device).view(*self.batch_size, 1),
-                "done": terminated | truncated,
-                "terminated": terminated,
-                "truncated": truncated,
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        reward = torch.as_tensor(rewards, dtype=torch.float32, device=self.device).view(*self.batch_size, 1)
+        return self._output(terminated, truncated).set("reward", reward)
 
     def _masked(self, tensordict: TensorDictBase | None, key: str) -> list[int]:
         """The flat indices of the copies a ``"_reset"``/``"_step"`` mask selects (all copies without one)."""
@@ -116,5 +101,11 @@ class GymBatchEnv(EnvBase):
         observations = np.asarray(self._observations)
         return self.observation_spec["observation"].encode(observations.reshape(*self.batch_size, *observations.shape[1:]))
 
-    def _flags(self, flags: np.ndarray) -> torch.Tensor:
-        return torch.from_numpy(flags).to(self.device).view(*self.batch_size, 1)
+    def _output(self, terminated: np.ndarray, truncated: np.ndarray) -> TensorDictBase:
+        """A step's or reset's output: the observations and the ``(*batch_size, 1)`` flags, ``done`` = either."""
+        terminated, truncated = (torch.from_numpy(flags).to(self.device).view(*self.batch_size, 1) for flags in (terminated, truncated))
+        return TensorDict(
+            {"observation": self._observation_tensor(), "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
+            batch_size=self.batch_size,
+            device=self.device,
+        )

@@ -10,7 +10,7 @@ from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymEnv, InitTracker, R
 from torchrl_mbe.envs.gym_batch import GymBatchEnv
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 
-__all__ = ["make_env"]
+__all__ = ["dqn_transforms", "make_env"]
 
 
 def make_env(
@@ -104,10 +104,15 @@ def make_env(
         base_env = _gym_env(env_id, batch_shape, device)
     else:
         raise ValueError(f"backend must be 'gym' or 'torch', got {backend!r}.")
-    env = TransformedEnv(base_env, Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum()))
+    env = TransformedEnv(base_env, dqn_transforms())
     if seed is not None:
         env.set_seed(seed)
     return env
+
+
+def dqn_transforms() -> Compose:
+    """The transforms :func:`make_env` puts on every env: float observations, ``step_count``, ``is_init``, ``episode_reward``."""
+    return Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum())
 
 
 def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str) -> EnvBase:
