@@ -278,6 +278,21 @@ def test_every_scorer_keeps_one_window_per_env_through_a_collector_with_batched_
     collector.shutdown()
 
 
+@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
+def test_every_scorer_scores_a_populations_windows_apart(scorer_cls):
+    # batch (num_envs, M) = (4, 3): changing member 1's visits changes member 1's scores, and no other's
+    visits = torch.randn(60, 4, 3, 8)
+    changed = visits.clone()
+    changed[:, :, 1] = changed[:, :, 1] * 3 + 1
+    scores = []
+    for states in (visits, changed):
+        novelty = scorer_cls(8, window=50, batch_shape=(4, 3))
+        novelty.update(states)
+        scores.append(novelty.score(torch.randn(5, 4, 3, 8, generator=torch.Generator().manual_seed(0))))
+    assert torch.equal(scores[0][:, :, [0, 2]], scores[1][:, :, [0, 2]])
+    assert not torch.equal(scores[0][:, :, 1], scores[1][:, :, 1])
+
+
 def test_diagonal_gaussian_is_the_sum_of_per_dimension_normal_log_densities():
     window = torch.randn(40, 2, 3) * torch.tensor([1.0, 10.0, 0.1])
     density = DiagonalGaussianDensity(window=40, batch_shape=(2,))
