@@ -103,7 +103,7 @@ class GymBatchEnv(EnvBase):
 
     def _output(self, terminated: np.ndarray, truncated: np.ndarray) -> TensorDictBase:
         """A step's or reset's output: the observations and the ``(*batch_size, 1)`` flags, ``done`` = either."""
-        terminated, truncated = (torch.from_numpy(flags).to(self.device).view(*self.batch_size, 1) for flags in (terminated, truncated))
+        terminated, truncated = (torch.tensor(flags, device=self.device).view(*self.batch_size, 1) for flags in (terminated, truncated))  # copies
         return TensorDict(
             {"observation": self._observation_tensor(), "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
             batch_size=self.batch_size,
