@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import json
 import logging
+import sys
 
 import hydra
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig
 
 from torchrl_mbe.app import ConfigError, register_configs, summary_line, train
+from torchrl_mbe.app.config import with_env_group
 
 log = logging.getLogger("train")
 
@@ -33,4 +35,5 @@ def main(cfg: DictConfig) -> float | None:
 
 if __name__ == "__main__":
     register_configs()  # conf/config.yaml extends the schema's base_config
+    sys.argv[1:] = with_env_group(sys.argv[1:])  # env.name=X alone: X's conf/env/ file, else env=gym
     main()

@@ -96,6 +96,7 @@ SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
     "final_eval_success_rate": (_optional(is_number), "a number or null", False),
     "best_eval_return": (_optional(is_number), "a number or null", False),
     "best_eval_frames": (_optional(is_int), "an integer or null", False),
+    "solved_by": (lambda v: v in ("return", "success"), "return or success", False),
     "solved": (_optional(lambda v: isinstance(v, bool)), "true, false or null", False),
     "solved_at_frames": (_optional(is_int), "an integer or null", False),
     "solved_at_wall_time_s": (_optional(is_number), "a number or null", False),
@@ -103,6 +104,7 @@ SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
 """Every field of ``summary.json``. ``tag`` and ``config_id`` (a fingerprint of every
 setting that shapes the result except the seed) say which experiment a run belongs
 to, so the report groups only runs of the same config; ``solved`` compares the
-final evaluation with the threshold; ``solved_at_*`` is the first periodic
+final evaluation with the threshold (``solved_by``: its mean ``return``, or its
+``success`` rate, MiniGrid's rule); ``solved_at_*`` is the first periodic
 evaluation at or above it that an evaluation of ``eval.final_episodes`` episodes
 confirmed."""

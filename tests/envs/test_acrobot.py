@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.envs.classic_control import acrobot as gym_acrobot
-from torchrl.envs import GymEnv
+from torchrl.envs import GymWrapper
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_mbe import make_env
@@ -133,4 +133,4 @@ def test_make_env_steps_several_acrobots_in_torch_and_its_seed_reproduces_them()
     assert torch.equal(first["observation"], again["observation"])
     assert not torch.equal(first["observation"][:, 0], other["observation"][:, 0])
     check_env_specs(make_env("acrobot", num_envs=4, seed=0))
-    assert isinstance(make_env("acrobot").base_env, GymEnv)
+    assert isinstance(make_env("acrobot").base_env, GymWrapper)

@@ -2,7 +2,7 @@ from __future__ import annotations
 
 import torch
 from torchrl.collectors import Collector
-from torchrl.envs import GymEnv
+from torchrl.envs import GymWrapper
 from torchrl.envs.utils import check_env_specs
 
 from torchrl_mbe import make_env
@@ -78,5 +78,5 @@ def test_make_env_steps_several_cartpoles_in_torch_and_one_through_gymnasium():
     env = make_env("cartpole", num_envs=4, seed=0)
     assert isinstance(env.base_env, BatchedCartPoleEnv) and env.batch_size == (4,)
     check_env_specs(env)
-    assert isinstance(make_env("cartpole").base_env, GymEnv)
+    assert isinstance(make_env("cartpole").base_env, GymWrapper)
     assert isinstance(make_env("cartpole", num_envs=2, backend="gym").base_env, GymBatchEnv)

@@ -207,9 +207,9 @@ def test_a_bad_size_gets_one_clear_error(size):
 def test_make_env_errors_name_what_is_accepted():
     with pytest.raises(ValueError, match="DeepSea has no gymnasium version; it runs with backend='torch' only"):
         make_env("deepsea", backend="gym")
-    with pytest.raises(ValueError, match=r"Keyword arguments \['size'\] are for a torch implementation"):
+    with pytest.raises(ValueError, match=r"CartPole-v1 does not take the keyword arguments \{'size': 10\}"):
         make_env("cartpole", backend="gym", size=10)
-    with pytest.raises(ValueError, match=r"Unknown environment 'deep-sea'. Supported: .*deepsea \(DeepSea\)"):
+    with pytest.raises(ValueError, match=r"Unknown environment 'deep-sea': expected a gymnasium id .*deepsea \(DeepSea\)"):
         make_env("deep-sea")
 
 

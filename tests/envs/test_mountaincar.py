@@ -7,7 +7,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
-from torchrl.envs import GymEnv
+from torchrl.envs import GymWrapper
 from torchrl.modules import MLP, QValueActor
 
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
@@ -107,7 +107,7 @@ def test_collector_truncates_long_episodes():
 
 
 def test_make_env_batches_other_tasks_serially_and_rejects_bad_requests():
-    assert isinstance(make_env("mountaincar").base_env, GymEnv)  # single env unchanged
+    assert isinstance(make_env("mountaincar").base_env, GymWrapper)  # single env unchanged
     assert isinstance(make_env("mountaincar", num_envs=3, backend="gym").base_env, GymBatchEnv)
     lunarlander = make_env("lunarlander", num_envs=2, seed=0)  # Box2D: no torch implementation
     assert isinstance(lunarlander.base_env, GymBatchEnv) and lunarlander.rollout(3).shape == (2, 3)

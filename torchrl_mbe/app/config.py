@@ -19,7 +19,7 @@ import dataclasses
 import hashlib
 import json
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Dict, Optional
 
 import torch
 from hydra.core.config_store import ConfigStore
@@ -27,6 +27,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
 from torchrl_mbe.app.loggers import BACKENDS, backend_unavailable
+from torchrl_mbe.app.observation import matched
 from torchrl_mbe.app.settings import (
     DISCOUNT,
     FRACTION,
@@ -56,15 +57,17 @@ __all__ = [
     "method_name",
     "seeds_name",
     "with_size",
+    "with_env_group",
     "register_configs",
 ]
 
 
 @dataclass
 class EnvConfig:
-    name: str = "mountaincar"  # a short name (conf/env/) or any discrete-action gymnasium id
+    name: str = "mountaincar"  # a short name (conf/env/), any discrete-action gymnasium id, or module:EnvId
     num_envs: int = setting(1, POSITIVE_INT)  # >1: a batch of envs, one novelty window each
     size: Optional[int] = setting(None, POSITIVE_INT.or_none())  # env=deepsea: the grid's side N (bsuite: 10 to 50)
+    make_kwargs: Dict[str, Any] = field(default_factory=dict)  # gym.make's keyword arguments: +env.make_kwargs.is_slippery=false
 
 
 @dataclass
@@ -179,6 +182,7 @@ class Config:
     progress_bar: bool = True
     torch_threads: Optional[int] = setting(1, POSITIVE_INT.or_none())  # null keeps torch's default
     compile: bool = False  # torch.compile the update step (falls back to eager if compilation fails)
+    match_observation: bool = True  # a one-hot observation gets the categorical model and visit counts (torchrl_mbe.app.observation)
 
 
 def register_configs() -> None:
@@ -200,11 +204,41 @@ def register_configs() -> None:
     for backend in BACKENDS:
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
     if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
-        OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(_root_))
+        OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(matched(_root_)))  # the explorer its observation gets
     if not OmegaConf.has_resolver("env_name"):  # ... and after the env, with its size
         OmegaConf.register_new_resolver("env_name", lambda *, _root_: with_size(_root_.env.name, _root_.env.size))
     if not OmegaConf.has_resolver("seeds"):  # ... and after the seed, or a population's seeds
         OmegaConf.register_new_resolver("seeds", lambda *, _root_: seeds_name(_root_.seed, _root_.population))
+
+
+def with_env_group(overrides: list[str]) -> list[str]:
+    """The command line with the env group ``env.name=X`` alone means: X's own file in ``conf/env/``, else ``env=gym``.
+
+    So ``python train.py env.name=FrozenLake-v1`` trains with the generic settings
+    (``conf/tuned/gym_dqn.yaml``), not with the default env's tuned ones. A command
+    line that names ``env=`` or an ``experiment=`` keeps its own.
+
+    Examples:
+        >>> from torchrl_mbe.app.config import with_env_group
+        >>> with_env_group(["env.name=FrozenLake-v1"]), with_env_group(["env.name=MiniGrid-Empty-5x5-v0"])
+        (['env=gym', 'env.name=FrozenLake-v1'], ['env=minigrid', 'env.name=MiniGrid-Empty-5x5-v0'])
+        >>> with_env_group(["env.name=acrobot", "seed=1"]), with_env_group(["env=deepsea", "env.size=20"])
+        (['env=acrobot', 'env.name=acrobot', 'seed=1'], ['env=deepsea', 'env.size=20'])
+    """
+    names = [override.split("=", 1)[1] for override in overrides if override.startswith("env.name=")]
+    if not names or any(override.startswith(("env=", "experiment=")) for override in overrides):
+        return overrides
+    groups = {_env_group(name) for name in names[-1].split(",")}
+    return [f"env={groups.pop() if len(groups) == 1 else 'gym'}", *overrides]
+
+
+def _env_group(name: str) -> str:
+    """The ``conf/env/`` file of an env name: its registry alias (a suite's too), else ``gym``."""
+    try:
+        task = task_of(resolve_env_id(name))
+    except ValueError:
+        return "gym"  # the config check names what is wrong with it
+    return task.alias if task is not None else "gym"
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -237,7 +271,7 @@ def _check_fields(node: Any, prefix: str) -> None:
 def _check_together(config: Config) -> None:
     """The rules that tie several settings together."""
     try:
-        env_id = resolve_env_id(config.env.name)
+        env_id = resolve_env_id(config.env.name, **config.env.make_kwargs)
     except ValueError as error:
         raise ConfigError(f"env.name={config.env.name!r}: {error}") from None
     _check_device(config.device)
@@ -370,7 +404,7 @@ def config_id(cfg: DictConfig) -> str:
 _PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag", "population")
 
 # Settings added after torchrl-mbe 0.2.0, with their values that change nothing that version computed.
-_ADDED_SETTINGS = {"env.size": None, "dynamics.output": "delta"}
+_ADDED_SETTINGS = {"env.size": None, "dynamics.output": "delta", "match_observation": True}
 _NOT_ADDED = object()
 
 

@@ -23,6 +23,7 @@ from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
+from torchrl_mbe.app.observation import env_options
 from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_fits, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
@@ -31,7 +32,6 @@ from torchrl_mbe.app.run import (
     evaluate_and_checkpoint_if_due,
     finish_run,
     keep_in_checkpoints,
-    env_options,
     make_run_env,
     open_run,
     record_frames,

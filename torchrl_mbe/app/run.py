@@ -31,7 +31,9 @@ from tqdm.auto import tqdm
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.rollout import EnvState
-from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, play_first_episodes, reached_goal, resolve_env_id, task_of
+from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, play_first_episodes, reached_goal, resolve_env_id
+from torchrl_mbe.app.observation import env_options
+from torchrl_mbe.envs.registry import SolvedRule, solved_rule
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
@@ -49,7 +51,6 @@ __all__ = [
     "play_episode",
     "record_updates",
     "make_run_env",
-    "env_options",
     "keep_in_checkpoints",
     "note_evaluation",
     "evaluate_members",
@@ -132,9 +133,8 @@ class Run:
     resumed: dict | None = None  # their states in the checkpoint this run resumed from
 
     @property
-    def solved_threshold(self) -> float | None:
-        task = task_of(self.env_id)
-        return task.solved_threshold if task is not None else None
+    def solved_rule(self) -> SolvedRule | None:
+        return solved_rule(self.env_id)
 
     def budget_spent(self) -> bool:
         """Whether the training budget is used up (or the task solved, with ``train.stop_when_solved``)."""
@@ -188,11 +188,6 @@ def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int) -> EnvBase:
     """
     batch = num_envs if cfg.population == 1 else (num_envs, cfg.population)
     return make_env(cfg.env.name, num_envs=batch, seed=seed, device=cfg.device, **env_options(cfg.env))
-
-
-def env_options(env: DictConfig) -> dict:
-    """The keyword arguments of the env's torch implementation that the ``env`` config sets (DeepSea's ``size``)."""
-    return {"size": env.size} if env.size is not None else {}
 
 
 def _summary_of_this_checkpoint(run_dir: Path, progress: Progress) -> dict | None:
@@ -367,12 +362,12 @@ def note_evaluation(run: Run, result: dict, *, confirm: Callable[[], dict]) -> N
         progress.best_eval_return, progress.best_eval_frames = mean, progress.frames
         best = {"actor": run.agent.actor.state_dict(), "frames": progress.frames, "eval_return_mean": mean}
         save_atomically(best, run.run_dir / BEST_POLICY)
-    threshold = run.solved_threshold
-    if threshold is not None and mean >= threshold and progress.solved_at_frames is None:
-        _confirm_solved(run, threshold, confirm)
+    rule = run.solved_rule
+    if rule is not None and result[rule.metric] >= rule.threshold and progress.solved_at_frames is None:
+        _confirm_solved(run, rule, confirm)
 
 
-def _confirm_solved(run: Run, threshold: float, confirm: Callable[[], dict]) -> None:
+def _confirm_solved(run: Run, rule: SolvedRule, confirm: Callable[[], dict]) -> None:
     """Marks the task solved if an evaluation of ``eval.final_episodes`` episodes (``confirm()``) confirms the periodic one.
 
     A few periodic episodes at or above the threshold often come from a policy
@@ -382,13 +377,14 @@ def _confirm_solved(run: Run, threshold: float, confirm: Callable[[], dict]) -> 
     progress = run.progress
     if run.cfg.eval.final_episodes:
         result = confirm()
-        mean = result["eval_return_mean"]
-        log.info("Confirming evaluation at %d frames (%d episodes): return %.1f", progress.frames, run.cfg.eval.final_episodes, mean)
-        if mean < threshold:
+        log.info(
+            "Confirming evaluation at %d frames (%d episodes): %s %.2f", progress.frames, run.cfg.eval.final_episodes, rule.metric, result[rule.metric]
+        )
+        if result[rule.metric] < rule.threshold:
             return
         run.confirmation = (progress.frames, result)
     progress.solved_at_frames, progress.solved_at_wall_time_s = progress.frames, round(progress.wall_time_s, 2)
-    log.info("Solved at %d frames (%.1f s), greedy return >= %g", progress.frames, progress.wall_time_s, threshold)
+    log.info("Solved at %d frames (%.1f s), greedy %s >= %g", progress.frames, progress.wall_time_s, rule.metric, rule.threshold)
 
 
 def _final_evaluation(run: Run) -> dict:
@@ -546,7 +542,7 @@ def close_run(run: Run, final: dict | None) -> dict:
 
 def write_summary(run: Run, final: dict | None) -> dict:
     """``summary.json`` (see :data:`~torchrl_mbe.rundir.SUMMARY_FIELDS`) and visited states, if recorded."""
-    cfg, progress, threshold = run.cfg, run.progress, run.solved_threshold
+    cfg, progress, rule = run.cfg, run.progress, run.solved_rule
     final_return = final["eval_return_mean"] if final else None
     summary = {
         "env": with_size(run.env_id, cfg.env.size),  # DeepSea-20: one env per size in the report
@@ -565,8 +561,9 @@ def write_summary(run: Run, final: dict | None) -> dict:
         "final_eval_success_rate": final["eval_success_rate"] if final else None,
         "best_eval_return": progress.best_eval_return,
         "best_eval_frames": progress.best_eval_frames,
-        "solved_threshold": threshold,
-        "solved": None if final_return is None or threshold is None else final_return >= threshold,
+        "solved_threshold": rule.threshold if rule is not None else None,
+        "solved_by": "success" if rule is not None and rule.metric == "eval_success_rate" else "return",
+        "solved": None if final is None or rule is None else final[rule.metric] >= rule.threshold,
         "solved_at_frames": progress.solved_at_frames,
         "solved_at_wall_time_s": progress.solved_at_wall_time_s,
     }
@@ -585,6 +582,11 @@ def summary_line(summary: dict, run_dir: Path | str) -> str:
         verdict = "No final evaluation"
     elif threshold is None:
         verdict = f"Final greedy return {final:.1f}"
+    elif summary.get("solved_by") == "success":
+        verdict = (
+            f"{'SOLVED' if summary['solved'] else 'NOT SOLVED'}: final greedy success rate {summary['final_eval_success_rate']:.2f} "
+            f"(threshold {threshold:g}), return {final:.2f}"
+        )
     else:
         verdict = f"{'SOLVED' if summary['solved'] else 'NOT SOLVED'}: final greedy return {final:.1f} (threshold {threshold:g})"
     if summary["best_eval_return"] is not None:

@@ -8,6 +8,7 @@ import torch
 from omegaconf import DictConfig
 
 from torchrl_mbe.app.config import check_config, register_configs
+from torchrl_mbe.app.observation import config_observation_spec, match_observation, named_on_command_line
 from torchrl_mbe.app.dqn import train_dqn
 from torchrl_mbe.app.population import train_dqn_population
 from torchrl_mbe.app.reinforce import train_reinforce
@@ -28,7 +29,9 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     and returns the population's summary, each member's under ``"members"``.
 
     Every config value is checked before anything is built
-    (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one).
+    (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one). The explorer then
+    follows the env's observation where nobody chose otherwise
+    (:func:`~torchrl_mbe.app.observation.match_observation`).
 
     Args:
         cfg (DictConfig): a config composed from ``conf/`` (see ``docs/usage.md``).
@@ -37,6 +40,11 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     """
     register_configs()  # the method_name resolver, where a launcher runs this job in a fresh process
     check_config(cfg)
+    observation_spec = config_observation_spec(cfg)
+    changes = match_observation(cfg, observation_spec, named_on_command_line())
+    if changes:
+        log.info("One-hot observation (%d cells): %s. Name any of these on the command line, or match_observation=false, to choose otherwise.", observation_spec.shape[-1], ", ".join(changes))
+        check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes
     if cfg.torch_threads:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 from tensordict import NestedKey, TensorDictBase
-from torchrl.data import Bounded, TensorSpec
+from torchrl.data import OneHot, TensorSpec
 
 from torchrl_mbe.envs.batched import BatchedTorchEnv
 from torchrl_mbe.modules.dynamics import ExactDynamics
@@ -179,9 +179,8 @@ class BatchedDeepSeaEnv(BatchedTorchEnv):
         self.deterministic = bool(deterministic)
         self.unscaled_move_cost = float(unscaled_move_cost)
         cells = self.size**2
-        self._make_spec(
-            Bounded(low=0.0, high=1.0, shape=(*self.batch_size, cells), dtype=torch.float32, device=self.device)
-        )
+        # One-hot cells (all zeros once the last row is left behind): what makes an explorer choose a categorical model.
+        self._make_spec(OneHot(cells, shape=(*self.batch_size, cells), dtype=torch.float32, device=self.device))
         # The MDP, fixed by the arguments, is no part of state_dict; the positions are.
         mapping = deepsea_action_mapping(self.size, mapping_seed if randomize_actions else None).to(self.device)
         self.register_buffer("action_mapping", mapping, persistent=False)

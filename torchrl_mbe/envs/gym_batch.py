@@ -4,12 +4,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import gymnasium as gym
+from typing import Any
+
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl._utils import seed_generator
-from torchrl.envs import EnvBase, GymEnv
+from torchrl.envs import EnvBase, GymWrapper
+
+from torchrl_mbe.envs.observations import make_gymnasium
 
 __all__ = ["GymBatchEnv"]
 
@@ -41,6 +44,9 @@ class GymBatchEnv(EnvBase):
 
     Keyword Args:
         device (torch.device): where the env's tensors live. Defaults to CPU.
+        make_kwargs (dict, optional): ``gym.make``'s keyword arguments. Each copy is
+            :func:`~torchrl_mbe.envs.observations.make_gymnasium`'s env (its
+            observation flattened to what a DQN reads).
 
     Examples:
         >>> from torchrl_mbe.envs import GymBatchEnv
@@ -50,14 +56,15 @@ class GymBatchEnv(EnvBase):
         torch.Size([2, 3, 4, 4])
     """
 
-    def __init__(self, env_id: str, batch_size: int | Sequence[int], *, device: torch.device | str = "cpu") -> None:
+    def __init__(
+        self, env_id: str, batch_size: int | Sequence[int], *, device: torch.device | str = "cpu", make_kwargs: dict[str, Any] | None = None
+    ) -> None:
         batch_size = torch.Size([batch_size] if isinstance(batch_size, int) else batch_size)
         super().__init__(batch_size=batch_size, device=device)
-        reference = GymEnv(env_id)  # TorchRL's reading of the gymnasium spaces
+        self.envs = [make_gymnasium(env_id, **(make_kwargs or {})) for _ in range(math.prod(batch_size))]
+        reference = GymWrapper(self.envs[0])  # TorchRL's reading of the gymnasium spaces
         for spec in ("full_observation_spec", "full_action_spec", "full_reward_spec", "full_done_spec"):
             setattr(self, spec, getattr(reference, spec).expand(*batch_size).to(self.device))
-        reference.close()
-        self.envs = [gym.make(env_id) for _ in range(math.prod(batch_size))]
         self._observations = [None] * len(self.envs)  # each copy's last gymnasium observation
 
     def _set_seed(self, seed: int | None) -> None:

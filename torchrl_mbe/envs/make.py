@@ -5,9 +5,10 @@ import math
 from typing import Any, Literal
 
 import torch
-from torchrl.envs import Compose, DoubleToFloat, EnvBase, GymEnv, InitTracker, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs import Compose, DoubleToFloat, DTypeCastTransform, EnvBase, GymWrapper, InitTracker, RewardSum, StepCounter, TransformedEnv
 
 from torchrl_mbe.envs.gym_batch import GymBatchEnv
+from torchrl_mbe.envs.observations import make_gymnasium
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 
 __all__ = ["dqn_transforms", "make_env"]
@@ -30,7 +31,8 @@ def make_env(
 
     Backends:
 
-    * ``"gym"``: one ``GymEnv``, or for ``num_envs > 1`` a
+    * ``"gym"``: one ``GymWrapper`` of the gymnasium env (its observation as
+      :func:`~torchrl_mbe.envs.observations.make_gymnasium` flattens it), or for ``num_envs > 1`` a
       :class:`~torchrl_mbe.envs.gym_batch.GymBatchEnv` of that batch shape (the
       episodes a ``SerialEnv`` of ``GymEnv`` copies plays, stepped without a
       TorchRL wrapper per copy). Not a ``ParallelEnv``: a classic-control or Box2D
@@ -52,7 +54,7 @@ def make_env(
 
     The default is ``"torch"`` when the task has a torch implementation and
     ``num_envs > 1`` or no gymnasium version, ``"gym"`` otherwise (so
-    ``make_env(name)`` of a gymnasium task is a ``GymEnv``).
+    ``make_env(name)`` of a gymnasium task is a ``GymWrapper``).
 
     Args:
         name (str): a short name of :data:`~torchrl_mbe.envs.registry.TASKS` or a gymnasium id.
@@ -63,8 +65,9 @@ def make_env(
         backend (str, optional): ``"gym"`` or ``"torch"``; see above.
         seed (int, optional): seeds the environment (copies get distinct seeds).
         device (torch.device): where the env's tensors live. Defaults to CPU.
-        **env_kwargs: keyword arguments of the torch implementation (DeepSea's
-            ``size``, ``mapping_seed``, ...); the gym backend takes none.
+        **env_kwargs: keyword arguments of the task: its torch implementation's
+            (DeepSea's ``size``, ``mapping_seed``, ...), or with the gym backend
+            ``gym.make``'s (FrozenLake's ``is_slippery``, ...).
 
     Examples:
         >>> from torchrl_mbe import make_env
@@ -77,10 +80,14 @@ def make_env(
         torch.Size([16, 400])
         >>> make_env("lunarlander", num_envs=(2, 3), seed=0).rollout(5, break_when_any_done=False).shape
         torch.Size([2, 3, 5])
+        >>> make_env("FrozenLake8x8-v1", is_slippery=False).observation_spec["observation"].shape  # one-hot cells, as floats
+        torch.Size([64])
+        >>> make_env("MiniGrid-DoorKey-5x5-v0", num_envs=2).observation_spec["observation"].shape  # 7x7x3 codes and 4 directions
+        torch.Size([2, 151])
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...
-        ValueError: Pendulum-v1 has a Box action space; model-based exploration plans over a discrete action set. Supported: mountaincar (MountainCar-v0), lunarlander (LunarLander-v3), acrobot (Acrobot-v1), cartpole (CartPole-v1), deepsea (DeepSea).
+        ValueError: Pendulum-v1 has a Box(-2.0, 2.0, (1,), float32) action space; model-based exploration plans over one discrete action set (a Discrete action space).
     """
     batch_shape = (num_envs,) if isinstance(num_envs, int) else tuple(num_envs)
     if not batch_shape or min(batch_shape) < 1:
@@ -98,25 +105,31 @@ def make_env(
         base_env = torch_env(num_envs, device=device, **env_kwargs)
     elif backend == "gym" and not gymnasium:
         raise ValueError(f"{env_id} has no gymnasium version; it runs with backend='torch' only.")
-    elif backend == "gym" and env_kwargs:
-        raise ValueError(f"Keyword arguments {sorted(env_kwargs)} are for a torch implementation; backend='gym' takes none.")
     elif backend == "gym":
-        base_env = _gym_env(env_id, batch_shape, device)
+        base_env = _gym_env(env_id, batch_shape, device, env_kwargs)
     else:
         raise ValueError(f"backend must be 'gym' or 'torch', got {backend!r}.")
-    env = TransformedEnv(base_env, dqn_transforms())
+    env = TransformedEnv(base_env, dqn_transforms(base_env.observation_spec["observation"].dtype))
     if seed is not None:
         env.set_seed(seed)
     return env
 
 
-def dqn_transforms() -> Compose:
-    """The transforms :func:`make_env` puts on every env: float observations, ``step_count``, ``is_init``, ``episode_reward``."""
-    return Compose(DoubleToFloat(), StepCounter(), InitTracker(), RewardSum())
+def dqn_transforms(observation_dtype: torch.dtype = torch.float32) -> Compose:
+    """The transforms :func:`make_env` puts on every env: float32 observations, ``step_count``, ``is_init``, ``episode_reward``.
+
+    A float64 observation is cast by ``DoubleToFloat``, any other (the one-hot
+    integers of a ``Discrete`` observation) by ``DTypeCastTransform``.
+    """
+    if observation_dtype in (torch.float32, torch.float64):
+        to_float = DoubleToFloat()
+    else:
+        to_float = DTypeCastTransform(observation_dtype, torch.float32, in_keys=["observation"])
+    return Compose(to_float, StepCounter(), InitTracker(), RewardSum())
 
 
-def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str) -> EnvBase:
-    """One ``GymEnv`` for ``(1,)``, else a ``GymBatchEnv`` of ``batch_shape``."""
+def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str, make_kwargs: dict[str, Any]) -> EnvBase:
+    """TorchRL's ``GymWrapper`` of :func:`~torchrl_mbe.envs.observations.make_gymnasium`'s env for ``(1,)``, else a ``GymBatchEnv`` of ``batch_shape``."""
     if batch_shape == (1,):
-        return GymEnv(env_id, device=device)
-    return GymBatchEnv(env_id, batch_shape, device=device)
+        return GymWrapper(make_gymnasium(env_id, **make_kwargs), device=device)
+    return GymBatchEnv(env_id, batch_shape, device=device, make_kwargs=make_kwargs)

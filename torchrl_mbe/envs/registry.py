@@ -10,8 +10,8 @@ adding one entry to :data:`TASKS` (and a ``conf/env/<alias>.yaml`` for the app).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, replace
+from typing import Any, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -22,10 +22,19 @@ from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics
+from torchrl_mbe.envs.observations import import_suite, make_gymnasium
 
-__all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "task_of", "resolve_env_id"]
+__all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "SUITE_TASKS", "SolvedRule", "solved_rule", "task_of", "resolve_env_id"]
 
 GoalRule = Literal["terminated", "truncated", "landed"]
+
+
+@dataclass(frozen=True)
+class SolvedRule:
+    """When a greedy evaluation counts as solving its task: its ``metric`` (an evaluation result's key) at or above ``threshold``."""
+
+    metric: Literal["eval_return_mean", "eval_success_rate"]
+    threshold: float
 
 
 @dataclass(frozen=True)
@@ -88,7 +97,8 @@ class Task:
         alias (str): the short name used by ``make_env`` and ``conf/env/``.
         env_id (str): the gymnasium id (with ``gymnasium=False``, the task's own id).
         solved_threshold (float): average return over 100 episodes at which
-            gymnasium calls the task solved.
+            gymnasium calls the task solved (with ``solved_by="success"``, the
+            fraction of episodes that reach the goal).
         goal (str): what counts as reaching the goal in an episode:
             ``"terminated"`` (the env's own termination), ``"truncated"`` (lasting
             until the time limit) or ``"landed"`` (terminated with a positive last
@@ -102,6 +112,8 @@ class Task:
         oracle (type, optional): the task's exact dynamics as a dynamics module
             (``cls(action_spec, **env_kwargs)``, the ``env_kwargs`` of ``torch_env``),
             for ``dynamics=oracle``; ``None`` where the project has none.
+        solved_by (str): ``"return"`` (the average return) or ``"success"`` (the
+            fraction of episodes that reach the goal) is what ``solved_threshold`` bounds.
     """
 
     alias: str
@@ -112,6 +124,7 @@ class Task:
     torch_env: type[EnvBase] | None = None
     gymnasium: bool = True
     oracle: type[TensorDictModuleBase] | None = None
+    solved_by: Literal["return", "success"] = "return"
 
 
 TASKS: dict[str, Task] = {
@@ -185,47 +198,84 @@ TASKS: dict[str, Task] = {
 }
 """The tested environments, by short name."""
 
+SUITE_TASKS: dict[str, Task] = {
+    prefix: Task(
+        "minigrid",
+        prefix,
+        # MiniGrid's reward is 1 - 0.9 * steps / max_steps at the goal and 0 otherwise, and its
+        # specs have no reward_threshold: solved is the goal reached in 90% of greedy episodes.
+        solved_threshold=0.9,
+        solved_by="success",
+        goal="landed",  # terminated with a positive reward: the goal, not lava or a wrong door
+        bounds=None,
+    )
+    for prefix in ("MiniGrid-", "BabyAI-")
+}
+"""The tasks of a third-party suite, by the prefix of their ids (each id gets the entry with its own ``env_id``)."""
+
 SUPPORTED_ENVS: dict[str, str] = {alias: task.env_id for alias, task in TASKS.items()}
 """Short names accepted everywhere (config files, ``make_env``) and their ids (gymnasium's, or DeepSea's own)."""
 
 
 def task_of(env_id: str) -> Task | None:
-    """The registry entry of an env id, or ``None`` for an untested environment.
+    """The registry entry of an env id (:data:`TASKS`, or its suite's in :data:`SUITE_TASKS`), or ``None`` for an untested environment.
 
     Examples:
         >>> from torchrl_mbe.envs.registry import task_of
         >>> task_of("CartPole-v1").solved_threshold
         475.0
+        >>> task_of("MiniGrid-DoorKey-5x5-v0").solved_by
+        'success'
     """
-    return next((task for task in TASKS.values() if task.env_id == env_id), None)
+    task = next((task for task in TASKS.values() if task.env_id == env_id), None)
+    prefix = next((prefix for prefix in SUITE_TASKS if env_id.startswith(prefix)), None)
+    return replace(SUITE_TASKS[prefix], env_id=env_id) if task is None and prefix is not None else task
+
+
+def solved_rule(env_id: str) -> SolvedRule | None:
+    """When ``env_id`` counts as solved: its registry entry's rule, else gymnasium's ``reward_threshold``; ``None`` if neither says.
+
+    Examples:
+        >>> from torchrl_mbe.envs.registry import solved_rule
+        >>> solved_rule("FrozenLake8x8-v1"), solved_rule("CliffWalking-v1")
+        (SolvedRule(metric='eval_return_mean', threshold=0.85), None)
+    """
+    task = task_of(env_id)
+    if task is not None:
+        return SolvedRule("eval_success_rate" if task.solved_by == "success" else "eval_return_mean", task.solved_threshold)
+    threshold = gym.spec(env_id).reward_threshold
+    return SolvedRule("eval_return_mean", float(threshold)) if threshold is not None else None
 
 
 def _supported_list() -> str:
     return ", ".join(f"{alias} ({env_id})" for alias, env_id in SUPPORTED_ENVS.items())
 
 
-def resolve_env_id(name: str) -> str:
+def resolve_env_id(name: str, **make_kwargs: Any) -> str:
     """The env id of a short name or id; one clear error for anything unsupported.
 
-    Any registered gymnasium id with a discrete action space is accepted, and the
-    torch-only tasks of :data:`TASKS` (``gymnasium=False``); the project is tested
-    on the entries of :data:`TASKS`.
+    Any registered gymnasium id with a discrete action space and an observation
+    :func:`~torchrl_mbe.envs.observations.make_gymnasium` reads is accepted (a
+    third-party suite's too: gymnasium's ``module:EnvId`` spelling, or a
+    :data:`~torchrl_mbe.envs.observations.SUITES` prefix such as ``MiniGrid-``),
+    built once with ``make_kwargs`` to check it; and the torch-only tasks of
+    :data:`TASKS` (``gymnasium=False``). The project is tested on the entries of
+    :data:`TASKS` and :data:`SUITE_TASKS`.
 
     Examples:
         >>> from torchrl_mbe.envs.registry import resolve_env_id
-        >>> resolve_env_id("acrobot"), resolve_env_id("deepsea")
-        ('Acrobot-v1', 'DeepSea')
+        >>> resolve_env_id("acrobot"), resolve_env_id("deepsea"), resolve_env_id("minigrid:MiniGrid-Empty-5x5-v0")
+        ('Acrobot-v1', 'DeepSea', 'MiniGrid-Empty-5x5-v0')
+        >>> resolve_env_id("CartPole-v1", length=1)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        ValueError: CartPole-v1 does not take the keyword arguments {'length': 1} (gym.make: ...
     """
-    env_id = SUPPORTED_ENVS.get(name.lower(), name)
+    env_id = import_suite(SUPPORTED_ENVS.get(name.lower(), name))
     task = task_of(env_id)
     if task is not None and not task.gymnasium:
         return env_id
     if env_id not in gym.registry:
-        raise ValueError(f"Unknown environment {name!r}. Supported: {_supported_list()}.")
-    action_space = gym.spec(env_id).make().action_space
-    if not isinstance(action_space, gym.spaces.Discrete):
-        raise ValueError(
-            f"{env_id} has a {type(action_space).__name__} action space; model-based exploration "
-            f"plans over a discrete action set. Supported: {_supported_list()}."
-        )
+        raise ValueError(f"Unknown environment {name!r}: expected a gymnasium id (module:EnvId for a third-party suite) or one of {_supported_list()}.")
+    make_gymnasium(env_id, **make_kwargs).close()
     return env_id

@@ -87,8 +87,9 @@ class Run:
         return None if solved_at is None else int((self.episode_frames <= solved_at).sum())
 
     def stats(self, window: int) -> EpisodeStats:
-        """:func:`~torchrl_mbe.report.metrics.episode_stats` of the run's episode table."""
-        return episode_stats(self.returns, self.reached_goal, self.solved_threshold, window=window)
+        """:func:`~torchrl_mbe.report.metrics.episode_stats` of the run's episode table (the goal's running rate for a task solved by success)."""
+        solved_by_success = self.summary.get("solved_by") == "success"
+        return episode_stats(self.reached_goal.astype(float) if solved_by_success else self.returns, self.reached_goal, self.solved_threshold, window=window)
 
 
 def _read_summary(path: Path) -> dict:

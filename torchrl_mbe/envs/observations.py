@@ -1,0 +1,119 @@
+"""Any gymnasium task as a DQN reads it: its observation as one float vector, its third-party suite imported.
+
+TorchRL's ``GymWrapper`` reads a ``Box`` and a ``Discrete`` observation (one-hot) itself;
+every other space (``MultiDiscrete``, ``MultiBinary``, ``Tuple``, ``Dict``, a ``Box`` of
+integers such as MiniGrid's 7x7x3 object/colour/state codes) is flattened by
+gymnasium's own ``FlattenObservation`` into float32, which TorchRL 0.14's
+``GymWrapper`` cannot do for a ``Tuple`` of unequal ``Discrete`` spaces
+(Blackjack) nor for MiniGrid's ``MissionSpace``. Entries that cannot be flattened
+(a mission text) are dropped, with one log line. Everything else is refused, in
+one line, before any work: a non-discrete action space, variable-size spaces
+(``Text``, ``Sequence``, ``Graph``) and observations of more than
+:data:`MAX_OBSERVATION_SIZE` numbers (pixels: the models here are MLPs on flat
+vectors, and a full-covariance window over ``d`` numbers costs ``d**2`` memory).
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.wrappers import DtypeObservation, FilterObservation, FlattenObservation
+
+__all__ = ["MAX_OBSERVATION_SIZE", "SUITES", "import_suite", "make_gymnasium"]
+
+log = logging.getLogger(__name__)
+
+MAX_OBSERVATION_SIZE = 4096
+"""The most numbers a flat observation may have (DeepSea-64's grid; a 36x36 RGB image)."""
+
+SUITES = {"MiniGrid-": "minigrid", "BabyAI-": "minigrid"}
+"""Third-party suites whose ids exist once their package is imported: id prefix -> package."""
+
+
+def import_suite(name: str) -> str:
+    """Imports the package that registers ``name`` (gymnasium's ``module:EnvId`` spelling, or a :data:`SUITES` prefix); returns the bare id.
+
+    Examples:
+        >>> from torchrl_mbe.envs.observations import import_suite
+        >>> import_suite("gymnasium.envs.toy_text:FrozenLake-v1"), import_suite("CartPole-v1")
+        ('FrozenLake-v1', 'CartPole-v1')
+    """
+    module, _, env_id = name.rpartition(":")
+    module = module or next((package for prefix, package in SUITES.items() if env_id.startswith(prefix)), "")
+    if module:
+        try:
+            importlib.import_module(module)
+        except ImportError:
+            extra = f"pip install -e '.[{module}]'" if module in SUITES.values() else f"pip install {module}"
+            raise ValueError(f"{name} needs the package {module!r}, which is not installed ({extra}).") from None
+    return env_id
+
+
+def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
+    """``gym.make(env_id, **make_kwargs)`` with its observation as :class:`~torchrl.envs.GymWrapper` reads it for DQN.
+
+    A ``Box`` of floats and a ``Discrete`` pass as they are; any other observation
+    space is flattened to a float32 vector (``Dict`` entries that cannot be, such as
+    a mission text, dropped first).
+
+    Raises:
+        ValueError: naming the space and what is accepted, for a task a DQN here
+            cannot act in or read (see the module's docstring).
+
+    Examples:
+        >>> from torchrl_mbe.envs.observations import make_gymnasium
+        >>> make_gymnasium("Blackjack-v1").observation_space  # three one-hot parts
+        Box(0.0, 1.0, (45,), float32)
+        >>> make_gymnasium("FrozenLake-v1", is_slippery=False).observation_space
+        Discrete(16)
+        >>> make_gymnasium("Pendulum-v1")
+        Traceback (most recent call last):
+        ...
+        ValueError: Pendulum-v1 has a Box(-2.0, 2.0, (1,), float32) action space; model-based exploration plans over one discrete action set (a Discrete action space).
+    """
+    try:
+        env = gym.make(env_id, **make_kwargs)
+    except TypeError as error:
+        raise ValueError(f"{env_id} does not take the keyword arguments {make_kwargs} (gym.make: {error}).") from None
+    try:
+        return _flat_observation(env_id, env)
+    except ValueError:
+        env.close()
+        raise
+
+
+def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
+    if not isinstance(env.action_space, spaces.Discrete):
+        raise ValueError(
+            f"{env_id} has a {env.action_space} action space; model-based exploration plans over one discrete action set (a Discrete action space)."
+        )
+    space = env.observation_space
+    if isinstance(space, spaces.Dict):
+        kept = [key for key, entry in space.spaces.items() if _flattenable(entry)]
+        if kept and len(kept) < len(space.spaces):
+            log.info("%s: the observation entries %s are dropped (not a fixed number of numbers)", env_id, sorted(set(space.spaces) - set(kept)))
+            env = FilterObservation(env, kept)
+            space = env.observation_space
+    if not _flattenable(space) or not spaces.flatdim(space):
+        raise ValueError(f"{env_id} has a {space} observation; accepted: Box, Discrete, MultiDiscrete, MultiBinary, and Tuple or Dict of these.")
+    if spaces.flatdim(space) > MAX_OBSERVATION_SIZE:
+        raise ValueError(
+            f"{env_id} has an observation of {spaces.flatdim(space)} numbers; at most {MAX_OBSERVATION_SIZE} are accepted (the models are "
+            "MLPs on flat vectors: for pixels, use a smaller or symbolic observation, such as MiniGrid's default 7x7x3 codes)."
+        )
+    if isinstance(space, spaces.Discrete) or (isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.floating) and len(space.shape) == 1):
+        return env  # GymWrapper reads these as they are (a Discrete one-hot)
+    return DtypeObservation(FlattenObservation(env), np.float32)
+
+
+def _flattenable(space: spaces.Space) -> bool:
+    """Whether gymnasium can flatten ``space`` into a fixed number of numbers (a text or a sequence cannot)."""
+    try:
+        return bool(space.is_np_flattenable)
+    except NotImplementedError:  # MiniGrid's MissionSpace
+        return False
