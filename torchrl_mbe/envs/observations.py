@@ -24,12 +24,15 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.wrappers import DtypeObservation, FilterObservation, FlattenObservation
 
-__all__ = ["MAX_OBSERVATION_SIZE", "SUITES", "import_suite", "make_gymnasium"]
+__all__ = ["MAX_EPISODE_STEPS", "MAX_OBSERVATION_SIZE", "SUITES", "check_gymnasium", "import_suite", "make_gymnasium"]
 
 log = logging.getLogger(__name__)
 
 MAX_OBSERVATION_SIZE = 4096
 """The most numbers a flat observation may have (DeepSea-64's grid; a 36x36 RGB image)."""
+
+MAX_EPISODE_STEPS = 1000
+"""The time limit of a task that has none (CliffWalking's, where a greedy policy can walk in circles forever)."""
 
 SUITES = {"MiniGrid-": "minigrid", "BabyAI-": "minigrid"}
 """Third-party suites whose ids exist once their package is imported: id prefix -> package."""
@@ -54,12 +57,24 @@ def import_suite(name: str) -> str:
     return env_id
 
 
+def check_gymnasium(env_id: str, **make_kwargs: Any) -> None:
+    """Builds and resets ``env_id`` once as :func:`make_gymnasium` does: raises its ``ValueError``, or one for a package its first reset lacks."""
+    env = make_gymnasium(env_id, **make_kwargs)
+    try:
+        env.reset(seed=0)
+    except gym.error.DependencyNotInstalled as error:
+        raise ValueError(f"{env_id} needs a package that is not installed: {error}") from None
+    finally:
+        env.close()
+
+
 def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
     """``gym.make(env_id, **make_kwargs)`` with its observation as :class:`~torchrl.envs.GymWrapper` reads it for DQN.
 
     A ``Box`` of floats and a ``Discrete`` pass as they are; any other observation
     space is flattened to a float32 vector (``Dict`` entries that cannot be, such as
-    a mission text, dropped first).
+    a mission text, dropped first). A task without a time limit gets
+    :data:`MAX_EPISODE_STEPS`.
 
     Raises:
         ValueError: naming the space and what is accepted, for a task a DQN here
@@ -77,9 +92,11 @@ def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
         ValueError: Pendulum-v1 has a Box(-2.0, 2.0, (1,), float32) action space; model-based exploration plans over one discrete action set (a Discrete action space).
     """
     try:
-        env = gym.make(env_id, **make_kwargs)
+        env = gym.make(env_id, **({"max_episode_steps": MAX_EPISODE_STEPS} if gym.spec(env_id).max_episode_steps is None else {}), **make_kwargs)
     except TypeError as error:
         raise ValueError(f"{env_id} does not take the keyword arguments {make_kwargs} (gym.make: {error}).") from None
+    except gym.error.DependencyNotInstalled as error:
+        raise ValueError(f"{env_id} needs a package that is not installed: {error}") from None
     try:
         return _flat_observation(env_id, env)
     except ValueError:
@@ -112,7 +129,12 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
 
 
 def _flattenable(space: spaces.Space) -> bool:
-    """Whether gymnasium can flatten ``space`` into a fixed number of numbers (a text or a sequence cannot)."""
+    """Whether ``space`` is a fixed number of numbers (a text, which gymnasium would flatten to character codes, or a sequence is not)."""
+    if isinstance(space, spaces.Text):
+        return False
+    if isinstance(space, (spaces.Tuple, spaces.Dict)):
+        entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
+        return all(map(_flattenable, entries))
     try:
         return bool(space.is_np_flattenable)
     except NotImplementedError:  # MiniGrid's MissionSpace

@@ -22,7 +22,7 @@ from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv
 from torchrl_mbe.envs.cartpole import BatchedCartPoleEnv
 from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics
-from torchrl_mbe.envs.observations import import_suite, make_gymnasium
+from torchrl_mbe.envs.observations import check_gymnasium, import_suite
 
 __all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "SUITE_TASKS", "SolvedRule", "solved_rule", "task_of", "resolve_env_id"]
 
@@ -258,7 +258,7 @@ def resolve_env_id(name: str, **make_kwargs: Any) -> str:
     :func:`~torchrl_mbe.envs.observations.make_gymnasium` reads is accepted (a
     third-party suite's too: gymnasium's ``module:EnvId`` spelling, or a
     :data:`~torchrl_mbe.envs.observations.SUITES` prefix such as ``MiniGrid-``),
-    built once with ``make_kwargs`` to check it; and the torch-only tasks of
+    built and reset once with ``make_kwargs`` to check it; and the torch-only tasks of
     :data:`TASKS` (``gymnasium=False``). The project is tested on the entries of
     :data:`TASKS` and :data:`SUITE_TASKS`.
 
@@ -277,5 +277,5 @@ def resolve_env_id(name: str, **make_kwargs: Any) -> str:
         return env_id
     if env_id not in gym.registry:
         raise ValueError(f"Unknown environment {name!r}: expected a gymnasium id (module:EnvId for a third-party suite) or one of {_supported_list()}.")
-    make_gymnasium(env_id, **make_kwargs).close()
+    check_gymnasium(env_id, **make_kwargs)
     return env_id

@@ -57,7 +57,7 @@ class Standardize(nn.Module):
         touch) keeps scale 1, as in scikit-learn's ``StandardScaler``: dividing by
         a floor would turn its first change into a value of millions.
         """
-        samples = samples.reshape(-1, *self.loc.shape)
+        samples = samples.reshape(-1, *self.loc.shape).to(self.loc.dtype)  # integer samples too (a one-hot Discrete observation)
         if samples.shape[0] < 2:
             raise ValueError("Standardize.fit needs at least two samples.")
         std = samples.std(0)
