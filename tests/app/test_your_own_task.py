@@ -7,6 +7,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from torchrl_mbe.app import ConfigError, train
+from torchrl_mbe.app.explorers import EXPLORERS
 from torchrl_mbe.app.observation import config_observation_spec, match_observation
 
 pytest.importorskip("minigrid")
@@ -26,6 +27,13 @@ def test_a_task_of_every_observation_kind_trains_with_the_model_its_observation_
     summary = train(compose_config("env=gym", f"env.name={env_id}", "train.episodes=1000"), tmp_path)  # Blackjack's hands are short
     assert summary["frames"] >= 300 and summary["dynamics_updates"] > 0 and summary["final_eval_return"] is not None
     assert summary["method"] == ("dqn+diagonal" if model == "categorical" else "dqn+gaussian")
+
+
+@pytest.mark.parametrize("exploration", list(EXPLORERS))
+def test_every_explorer_trains_on_a_one_hot_task_with_what_it_names(tmp_path, compose_config, exploration):
+    summary = train(compose_config("env=gym", "env.name=Taxi-v4", f"exploration={exploration}"), tmp_path)
+    assert summary["frames"] >= 300 and summary["q_updates"] > 0
+    assert summary["method"] == ("dqn+diagonal" if exploration == "gaussian" else f"dqn+{exploration}")  # composed without a command line: gaussian is matched
 
 
 def test_env_deepsea_alone_trains_as_the_categorical_preset(compose_default):
