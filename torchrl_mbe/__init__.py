@@ -9,6 +9,8 @@ The components live in :mod:`torchrl_mbe.modules`, :mod:`torchrl_mbe.objectives`
 and :mod:`torchrl_mbe.envs`; the Hydra app in :mod:`torchrl_mbe.app` and the
 report in :mod:`torchrl_mbe.report` build on them (docs/architecture.md).
 """
+from importlib.metadata import version as _version
+
 from torchrl_mbe.envs import SUPPORTED_ENVS, BatchedMountainCarEnv, MountainCarDynamics, make_env
 from torchrl_mbe.modules import (
     AnnealedEGreedyModule,
@@ -41,3 +43,6 @@ __all__ = [
     "SUPPORTED_ENVS",
     "make_env",
 ]
+
+__version__ = _version("torchrl-mbe")
+"""The installed version (pyproject.toml's ``version``)."""
