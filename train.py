@@ -3,6 +3,7 @@
 A thin Hydra wrapper around :func:`torchrl_mbe.app.train`; the config lives in ``conf/``.
 Sweeps: ``python train.py -m exploration=gaussian,kernel,egreedy seed=0,1,2``.
 """
+
 from __future__ import annotations
 
 import json

@@ -12,6 +12,7 @@ Prints those steps per block of episodes, and the episode of the first treasure.
     python bench/deepsea_choices.py --size 20 --min-variance 1e-3   # the preset's
     python bench/deepsea_choices.py --size 20 --num-cells 64 64 --standardize --min-variance 1e-8  # the preset before b9777cb
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,7 +32,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--size", type=int, default=20)
     parser.add_argument("--min-variance", type=float, default=1e-3, help="the density's variance floor")
     parser.add_argument("--num-cells", type=int, nargs="+", default=[512], help="the model's hidden layers")
-    parser.add_argument("--standardize", action="store_true", help="standardize the model's inputs and deltas (default: raw units)")
+    parser.add_argument(
+        "--standardize", action="store_true", help="standardize the model's inputs and deltas (default: raw units)"
+    )
     parser.add_argument("--prior-scale", type=float, default=10.0)
     parser.add_argument("--episodes", type=int, default=150)
     parser.add_argument("--block", type=int, default=25, help="episodes per printed line")
@@ -50,8 +53,10 @@ def main() -> None:
     replay_buffer = ReplayBuffer(storage=LazyTensorStorage(args.episodes * (size - 1)), batch_size=256)
     visits = torch.zeros(size**2)
     against_counts, steps, start = 0, 0, time.perf_counter()
-    print(f"DeepSea-{size}, hidden {args.num_cells}, {'standardized' if args.standardize else 'raw units'}, "
-          f"prior {args.prior_scale}, variance floor {args.min_variance:g}, seed {args.seed}")
+    print(
+        f"DeepSea-{size}, hidden {args.num_cells}, {'standardized' if args.standardize else 'raw units'}, "
+        f"prior {args.prior_scale}, variance floor {args.min_variance:g}, seed {args.seed}"
+    )
     for episode in range(1, args.episodes + 1):
         observation, rights = torch.eye(size**2)[0], 0
         planner.novelty.update(observation[None])
@@ -66,7 +71,9 @@ def main() -> None:
             steps += 1
             next_observation = true_next[choice]
             rights += int(next_observation.argmax() % size > observation.argmax() % size)
-            replay_buffer.add(TensorDict({"observation": observation, "action": action, ("next", "observation"): next_observation}))
+            replay_buffer.add(
+                TensorDict({"observation": observation, "action": action, ("next", "observation"): next_observation})
+            )
             planner.novelty.update(next_observation[None])
             visits[next_observation.argmax()] += 1
             observation = next_observation
@@ -78,8 +85,10 @@ def main() -> None:
             print(f"episode {episode}: the treasure ({time.perf_counter() - start:.0f} s)")
             break
         if episode % args.block == 0:
-            print(f"episodes {episode - args.block + 1}-{episode}: {against_counts} of {steps} steps against the counts "
-                  f"({against_counts / steps:.1%}), last episode {rights} of {size - 1} right moves ({time.perf_counter() - start:.0f} s)")
+            print(
+                f"episodes {episode - args.block + 1}-{episode}: {against_counts} of {steps} steps against the counts "
+                f"({against_counts / steps:.1%}), last episode {rights} of {size - 1} right moves ({time.perf_counter() - start:.0f} s)"
+            )
             against_counts, steps = 0, 0
 
 

@@ -13,6 +13,7 @@ variance floor (``min_variance``, no ``added_variance``).
     python train.py experiment=deepsea_learned env.size=30 population=2 train.episodes=200
     python bench/deepsea_frontier.py runs/deepsea/deepsea-30/dqn+diagonal/seeds0-1/checkpoint.pt --floor 1e-3
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,8 +22,8 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 
-from torchrl_mbe.app.dqn import build_dqn_agent
 from torchrl_mbe.app.config import ConfigError
+from torchrl_mbe.app.dqn import build_dqn_agent
 from torchrl_mbe.app.run import load_safely, make_run_env
 from torchrl_mbe.envs.deepsea import DeepSeaDynamics
 from torchrl_mbe.modules import DiagonalGaussianDensity
@@ -31,7 +32,9 @@ from torchrl_mbe.modules import DiagonalGaussianDensity
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint", help="a checkpoint.pt of experiment=deepsea_learned (any population size)")
-    parser.add_argument("--floor", type=float, help="also score the true next cells with the same counts and only this variance floor")
+    parser.add_argument(
+        "--floor", type=float, help="also score the true next cells with the same counts and only this variance floor"
+    )
     args = parser.parse_args()
     if args.floor is not None and not args.floor > 0:
         parser.error(f"--floor {args.floor:g}: expected a variance > 0")
@@ -45,12 +48,21 @@ def main() -> None:
     actions = planner.candidate_actions
     true_dynamics = DeepSeaDynamics(planner.action_spec, size=size)
     with torch.no_grad():
-        predicted = torch.stack([planner.dynamics.predict(cells, actions[a].expand(*cells.shape[:-1], -1)) for a in range(2)])
+        predicted = torch.stack(
+            [planner.dynamics.predict(cells, actions[a].expand(*cells.shape[:-1], -1)) for a in range(2)]
+        )
         true_next = torch.stack([true_dynamics.step(cells, torch.full(cells.shape[:-1], a)) for a in range(2)])
-        scores = {"learned model": planner.novelty.score(predicted), "true next cells": planner.novelty.score(true_next)}
+        scores = {
+            "learned model": planner.novelty.score(predicted),
+            "true next cells": planner.novelty.score(true_next),
+        }
         if args.floor is not None:
-            floored = DiagonalGaussianDensity(window=None, batch_shape=planner.novelty.batch_shape, min_variance=args.floor)
-            floored.load_state_dict({**planner.novelty.state_dict(), "fit_stale": torch.tensor(True)})  # the sums; refit with the floor
+            floored = DiagonalGaussianDensity(
+                window=None, batch_shape=planner.novelty.batch_shape, min_variance=args.floor
+            )
+            floored.load_state_dict(
+                {**planner.novelty.state_dict(), "fit_stale": torch.tensor(True)}
+            )  # the sums; refit with the floor
             scores[f"true next cells, floor {args.floor:g} alone"] = floored.score(true_next)
     visits = planner.novelty.state_sum.reshape(members, size**2)
     next_cells = true_next.argmax(-1)[:, :, 0]  # (action, cell, member)
@@ -62,15 +74,23 @@ def main() -> None:
         compared = (visits[member] > 0) & (rows < size - 1) & (next_visits[0] != next_visits[1])
         rare = compared & (next_visits.amin(0) < 20)
         fewer = next_visits.argmin(0)
-        print(f"seed {cfg.seed + member}: of {int(compared.sum())} visited cells whose next cells' visits differ, the less-visited one is preferred")
+        print(
+            f"seed {cfg.seed + member}: of {int(compared.sum())} visited cells whose next cells' visits differ, the less-visited one is preferred"
+        )
         for name, score in scores.items():
             score = score[:, :, 0, member]  # (action, cell)
             preferred = score.argmax(0) == fewer
-            print(f"  with the {name}: {preferred[compared].float().mean():.1%} (where it has under 20 visits: "
-                  f"{preferred[rare].float().mean():.1%} of {int(rare.sum())}, score gap median {(score[0] - score[1]).abs()[rare].median():.1f})")
-        seen = (next_visits > 0) & (visits[member] > 0) & (rows < size - 1)  # both cells visited: most such pairs were tried
-        print(f"  model error where both cells were visited: median {errors[:, :, member][seen].median():.3f}, "
-              f"90th percentile {errors[:, :, member][seen].quantile(0.9):.3f} (cells are 1.41 apart)")
+            print(
+                f"  with the {name}: {preferred[compared].float().mean():.1%} (where it has under 20 visits: "
+                f"{preferred[rare].float().mean():.1%} of {int(rare.sum())}, score gap median {(score[0] - score[1]).abs()[rare].median():.1f})"
+            )
+        seen = (
+            (next_visits > 0) & (visits[member] > 0) & (rows < size - 1)
+        )  # both cells visited: most such pairs were tried
+        print(
+            f"  model error where both cells were visited: median {errors[:, :, member][seen].median():.3f}, "
+            f"90th percentile {errors[:, :, member][seen].quantile(0.9):.3f} (cells are 1.41 apart)"
+        )
         print(f"  visits along the diagonal: {visits[member].reshape(size, size).diagonal().int().tolist()}")
 
 
@@ -84,7 +104,9 @@ def read_deepsea_checkpoint(parser: argparse.ArgumentParser, path: Path) -> dict
         parser.error(str(error))
     config = checkpoint.get("config", {})
     if config.get("env", {}).get("name") != "deepsea" or config.get("exploration", {}).get("name") != "diagonal":
-        parser.error(f"{path} is not a checkpoint of env=deepsea with exploration=diagonal (experiment=deepsea_learned is)")
+        parser.error(
+            f"{path} is not a checkpoint of env=deepsea with exploration=diagonal (experiment=deepsea_learned is)"
+        )
     return checkpoint
 
 

@@ -14,6 +14,7 @@ second-layer units that no stored observation activates (dead ReLUs) at the end.
     python bench/deepsea_q_replay.py RUN_DIR/checkpoint.pt algo.lr=2e-3 algo.standardize_inputs=true --repeats 2
     python bench/deepsea_q_replay.py RUN_DIR/checkpoint.pt algo.lr=5e-4 algo.standardize_inputs=false --repeats 2
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,9 +36,13 @@ from torchrl_mbe.app.run import crossed, make_run_env
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("checkpoint", help="a checkpoint.pt of a DeepSea preset with eps 1 (experiment=deepsea_categorical)")
+    parser.add_argument(
+        "checkpoint", help="a checkpoint.pt of a DeepSea preset with eps 1 (experiment=deepsea_categorical)"
+    )
     parser.add_argument("overrides", nargs="*", help="config overrides of the replayed Q side, e.g. algo.lr=5e-4")
-    parser.add_argument("--repeats", type=int, default=1, help="initializations per member (torch seeds seed, seed+1000, ...)")
+    parser.add_argument(
+        "--repeats", type=int, default=1, help="initializations per member (torch seeds seed, seed+1000, ...)"
+    )
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error(f"--repeats {args.repeats}: expected at least 1 initialization per member")
@@ -45,7 +50,10 @@ def main() -> None:
     checkpoint = read_deepsea_checkpoint(parser, Path(args.checkpoint))
     cfg = replay_config(parser, checkpoint["config"], args.overrides)
     stored = stored_transitions(checkpoint)
-    print(f"DeepSea-{cfg.env.size}, {stored.shape[0]} frames a member; Q side: {OmegaConf.to_container(cfg.algo)}", flush=True)
+    print(
+        f"DeepSea-{cfg.env.size}, {stored.shape[0]} frames a member; Q side: {OmegaConf.to_container(cfg.algo)}",
+        flush=True,
+    )
     solved_episodes = []
     for member in range(stored.shape[1]):
         seed = checkpoint["config"]["seed"] + member
@@ -78,7 +86,9 @@ def replay_config(parser: argparse.ArgumentParser, config: dict, overrides: list
     except OmegaConfBaseException as error:
         parser.error(f"overrides {' '.join(overrides)}: {str(error).splitlines()[0]}")
     if cfg.algo.eps_end != 1.0 or cfg.env.num_envs != 1:
-        parser.error(f"a replay needs algo.eps_end=1 and env.num_envs=1 (the Q-network never acts, one episode after another); got {cfg.algo.eps_end} and {cfg.env.num_envs}")
+        parser.error(
+            f"a replay needs algo.eps_end=1 and env.num_envs=1 (the Q-network never acts, one episode after another); got {cfg.algo.eps_end} and {cfg.env.num_envs}"
+        )
     return cfg
 
 
@@ -102,7 +112,9 @@ def treasure_episodes(transitions: TensorDictBase, size: int) -> tuple[torch.Ten
     return episodes["action"][treasure][0].argmax(-1), treasure.nonzero()[0].item() + 1
 
 
-def replay(cfg: DictConfig, seed: int, transitions: TensorDictBase, treasure_path: torch.Tensor, *, torch_seed: int) -> tuple[int | None, int]:
+def replay(
+    cfg: DictConfig, seed: int, transitions: TensorDictBase, treasure_path: torch.Tensor, *, torch_seed: int
+) -> tuple[int | None, int]:
     """Trains a fresh Q side on ``transitions`` batch by batch; returns the episode its greedy policy first takes the treasure, and its dead units."""
     torch.manual_seed(torch_seed)
     agent = build_dqn_agent(cfg, make_run_env(cfg, num_envs=1, seed=seed))
@@ -133,7 +145,9 @@ def takes_treasure(agent: DQNAgent, treasure_path: torch.Tensor) -> bool:
 def dead_units(agent: DQNAgent, observations: torch.Tensor) -> int:
     """Last hidden layer units that no observation activates."""
     network = agent.actor.module[0].module  # QValueActor's MLP, behind Sequential(Standardize, MLP) if standardized
-    mlp, features = (network[1], agent.q_input_norm(observations)) if agent.standardizes_inputs else (network, observations)
+    mlp, features = (
+        (network[1], agent.q_input_norm(observations)) if agent.standardizes_inputs else (network, observations)
+    )
     for layer in list(mlp)[:-1]:
         features = layer(features)
     return int((features.amax(0) <= 0).sum())

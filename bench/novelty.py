@@ -20,6 +20,7 @@ warm-up call, the two fits timed in alternating blocks; a call slower than
 ``SLOW_CALL_S`` is timed once, its warm-up call being the figure. A benchmark, not a
 test: it prints a table and asserts nothing.
 """
+
 from __future__ import annotations
 
 import argparse

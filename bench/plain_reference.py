@@ -14,6 +14,7 @@ Every field of :class:`PlainConfig` is a flag (``--field-name``). From Python::
     from plain_reference import PlainConfig, run
     run(PlainConfig(max_frames=3000))
 """
+
 from __future__ import annotations
 
 import argparse
@@ -69,8 +70,10 @@ class PlainConfig:
 def mlp(in_size: int, out_size: int, hidden_size: int) -> nn.Sequential:
     """Two ReLU hidden layers, Xavier-uniform weights, zero biases."""
     net = nn.Sequential(
-        nn.Linear(in_size, hidden_size), nn.ReLU(),
-        nn.Linear(hidden_size, hidden_size), nn.ReLU(),
+        nn.Linear(in_size, hidden_size),
+        nn.ReLU(),
+        nn.Linear(hidden_size, hidden_size),
+        nn.ReLU(),
         nn.Linear(hidden_size, out_size),
     )
     for layer in net:

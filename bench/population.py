@@ -18,6 +18,7 @@ Every figure is the median over timed blocks (``time.perf_counter``) after untim
 warm-up calls; the variants compared are timed in alternating blocks, so load changes
 hit them alike. A benchmark, not a test: it prints tables and asserts nothing.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -81,7 +82,9 @@ def torchrl_buffer(data: TensorDict) -> TensorDictReplayBuffer:
     return buffer
 
 
-def dqn_update(loss: LossModule, sample: Callable[[], TensorDict], clip: Callable[[list[torch.Tensor]], torch.Tensor]) -> Callable[[], None]:
+def dqn_update(
+    loss: LossModule, sample: Callable[[], TensorDict], clip: Callable[[list[torch.Tensor]], torch.Tensor]
+) -> Callable[[], None]:
     """One update of ``loss`` on ``sample()``: loss, backward, ``clip``, fused Adam, hard target update."""
     loss.make_value_estimator(gamma=0.99)
     parameters = list(loss.parameters())
@@ -109,7 +112,9 @@ def population_update(num_members: int, hidden: Sequence[int]) -> Callable[[], N
 
 def single_update(hidden: Sequence[int]) -> Callable[[], None]:
     buffer = torchrl_buffer(transitions(CAPACITY))
-    actor = QValueActor(make_per_action_mlp(OBSERVATION_SIZE, ACTION_SPEC, hidden), spec=ACTION_SPEC, in_keys=["observation"])
+    actor = QValueActor(
+        make_per_action_mlp(OBSERVATION_SIZE, ACTION_SPEC, hidden), spec=ACTION_SPEC, in_keys=["observation"]
+    )
     clip = functools.partial(torch.nn.utils.clip_grad_norm_, max_norm=MAX_GRAD_NORM)
     return dqn_update(DQNLoss(actor, **LOSS_OPTIONS), functools.partial(buffer.sample, BATCH_SIZE), clip)
 
@@ -150,7 +155,9 @@ def print_rows(title: str, header: Sequence[str], rows: list[Sequence[str]]) -> 
 def bench_updates() -> None:
     rows = []
     for hidden in HIDDEN_LAYERS:
-        lone_single_ms = None  # the N = 1 row's single network: a single run's update, without N networks sharing the caches
+        lone_single_ms = (
+            None  # the N = 1 row's single network: a single run's update, without N networks sharing the caches
+        )
         for num_members in MEMBERS:
             seconds = median_seconds(
                 {
@@ -191,7 +198,9 @@ def bench_sampling() -> None:
                 "shared rows": functools.partial(shared_rows.sample, BATCH_SIZE),
             }
         )
-        rows.append((str(num_members), *(f"{1e3 * seconds[name]:.3f}" for name in ("population", "separate", "shared rows"))))
+        rows.append(
+            (str(num_members), *(f"{1e3 * seconds[name]:.3f}" for name in ("population", "separate", "shared rows")))
+        )
     header = ("N", "PopulationReplayBuffer", "N TorchRL buffers", "one TorchRL buffer, rows shared")
     print_rows(f"sample: ms for {BATCH_SIZE} transitions per member, capacity {CAPACITY:,}", header, rows)
 
@@ -201,7 +210,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    logging.getLogger("torchrl").setLevel(logging.WARNING)  # one "Initialized LazyTensorStorage" line per buffer otherwise
+    logging.getLogger("torchrl").setLevel(
+        logging.WARNING
+    )  # one "Initialized LazyTensorStorage" line per buffer otherwise
     torch.set_flush_denormal(True)  # as train(cfg) does
     torch.manual_seed(0)
     started = time.perf_counter()

@@ -8,6 +8,7 @@ Any Hydra override of the app applies; logging, evaluation and early stopping ar
 off so that the profile shows the loop alone. Prints frames/s and the functions
 with the largest cumulative time. A benchmark tool, not a test.
 """
+
 from __future__ import annotations
 
 import cProfile

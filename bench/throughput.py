@@ -15,6 +15,7 @@ writes JSON (machine, versions, figures); it asserts nothing.
 
 Each section is a function ``(Budget) -> list[Measurement]`` named in :data:`SECTIONS`.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,6 +42,10 @@ import torch
 import torchrl
 from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig
+from plain_reference import Agent as PlainAgent
+from plain_reference import PlainConfig
+from plain_reference import ReplayBuffer as PlainReplayBuffer
+from plain_reference import run as run_plain_reference
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
 from torch import nn
@@ -50,10 +55,6 @@ from torchrl.envs import EnvBase, ExplorationType, GymEnv, SerialEnv, Transforme
 from torchrl.modules import MLP, EGreedyModule, QValueActor
 
 import torchrl_mbe
-from plain_reference import Agent as PlainAgent
-from plain_reference import PlainConfig
-from plain_reference import ReplayBuffer as PlainReplayBuffer
-from plain_reference import run as run_plain_reference
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, NoveltyPlanner, RollingGaussianDensity, make_env
 from torchrl_mbe.app import register_configs, train
 from torchrl_mbe.app.dqn import build_dqn_agent as build_agent
@@ -66,7 +67,14 @@ from torchrl_mbe.envs.registry import resolve_env_id
 RESULTS_DIR = Path(__file__).parent / "results"
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 TRAIN_SCRIPT = Path(__file__).resolve().parents[1] / "train.py"
-LOOP_ALONE = ("logger=none", "progress_bar=false", "eval.episodes=0", "eval.final_episodes=0", "train.episodes=1000000", "train.stop_when_solved=false")
+LOOP_ALONE = (
+    "logger=none",
+    "progress_bar=false",
+    "eval.episodes=0",
+    "eval.final_episodes=0",
+    "train.episodes=1000000",
+    "train.stop_when_solved=false",
+)
 """Overrides that leave the training loop alone: no logging, evaluation or early stop."""
 
 
@@ -106,12 +114,28 @@ class Budget:
 
 
 FULL = Budget(
-    warmup=200, repeats=7, calls=500, collector_batches=10, collector_steps=50, train_frames=3000, train_repeats=3,
-    reference_frames=20_000, population_frames=4000, population_sizes=(1, 5, 20, 100),
+    warmup=200,
+    repeats=7,
+    calls=500,
+    collector_batches=10,
+    collector_steps=50,
+    train_frames=3000,
+    train_repeats=3,
+    reference_frames=20_000,
+    population_frames=4000,
+    population_sizes=(1, 5, 20, 100),
 )
 QUICK = Budget(
-    warmup=10, repeats=2, calls=20, collector_batches=2, collector_steps=10, train_frames=1000, train_repeats=1,
-    reference_frames=3000, population_frames=2000, population_sizes=(1, 5),
+    warmup=10,
+    repeats=2,
+    calls=20,
+    collector_batches=2,
+    collector_steps=10,
+    train_frames=1000,
+    train_repeats=1,
+    reference_frames=3000,
+    population_frames=2000,
+    population_sizes=(1, 5),
 )
 
 
@@ -123,7 +147,9 @@ class Measurement:
     unit: str
 
 
-def seconds_per_call(fns: dict[str, Callable[[], object]], *, warmup: int, repeats: int, calls: int) -> dict[str, float]:
+def seconds_per_call(
+    fns: dict[str, Callable[[], object]], *, warmup: int, repeats: int, calls: int
+) -> dict[str, float]:
     """Median wall time of one call of each function.
 
     After ``warmup`` untimed calls of each, ``repeats`` rounds time a block of
@@ -149,7 +175,9 @@ def q_actor(spec: OneHot) -> QValueActor:
     return QValueActor(network, spec=spec, in_keys=["observation"])
 
 
-def model_based_policy(actor: QValueActor, spec: OneHot, num_envs: int, eps: float = 1.0) -> ModelBasedExplorationPolicy:
+def model_based_policy(
+    actor: QValueActor, spec: OneHot, num_envs: int, eps: float = 1.0
+) -> ModelBasedExplorationPolicy:
     """Explores with constant probability ``eps``: one window of the last 50 states per env."""
     batch_shape = (num_envs,) if num_envs > 1 else ()
     density = RollingGaussianDensity(2, window=50, batch_shape=batch_shape)
@@ -194,7 +222,10 @@ def bench_gym_batch(budget: Budget) -> list[Measurement]:
     for batch_shape in ((8,), (8, 5)):
         num_copies = math.prod(batch_shape)
         serial = SerialEnv(num_copies, functools.partial(GymEnv, "LunarLander-v3"))
-        for name, base_env in (("SerialEnv of GymEnv", serial), ("GymBatchEnv", GymBatchEnv("LunarLander-v3", batch_shape))):
+        for name, base_env in (
+            ("SerialEnv of GymEnv", serial),
+            ("GymBatchEnv", GymBatchEnv("LunarLander-v3", batch_shape)),
+        ):
             env = TransformedEnv(base_env, dqn_transforms())
             env.set_seed(0)
             label = f"{name}, {num_copies} copies {tuple(env.batch_size)}"
@@ -232,7 +263,10 @@ def bench_exploration_step(budget: Budget) -> list[Measurement]:
         states = [low + (high - low) * torch.rand(*batch_size, 2) for _ in range(100)]
         inputs = itertools.cycle([TensorDict({"observation": state}, batch_size) for state in states])
         actor = q_actor(spec)
-        policies = {"model-based": model_based_policy(actor, spec, batch, eps), "egreedy": egreedy_policy(actor, spec, eps)}
+        policies = {
+            "model-based": model_based_policy(actor, spec, batch, eps),
+            "egreedy": egreedy_policy(actor, spec, eps),
+        }
         label = f"batch {batch}" + (", greedy step (eps=0)" if eps == 0 else "")
         with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
             timing = seconds_per_call(
@@ -300,7 +334,10 @@ def bench_collection(budget: Budget) -> list[Measurement]:
     timing = seconds_per_call(next_batch, warmup=1, repeats=budget.repeats, calls=budget.collector_batches)
     for collector in collectors:
         collector.shutdown()
-    return [Measurement("collection", name, frames_per_batch[name] / seconds, "env-steps/s") for name, seconds in timing.items()]
+    return [
+        Measurement("collection", name, frames_per_batch[name] / seconds, "env-steps/s")
+        for name, seconds in timing.items()
+    ]
 
 
 def paper_config(*overrides: str) -> DictConfig:
@@ -348,7 +385,9 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
         **{f"fpb=64 N={n}, eps annealed": ("collector.frames_per_batch=64", f"env.num_envs={n}") for n in (1, 8, 64)},
     }
     configs = {
-        (loop, exploration): paper_config(*overrides, f"exploration={exploration}", f"train.max_frames={budget.train_frames}")
+        (loop, exploration): paper_config(
+            *overrides, f"exploration={exploration}", f"train.max_frames={budget.train_frames}"
+        )
         for loop, overrides in loops.items()
         for exploration in ("gaussian", "egreedy")
     }
@@ -358,7 +397,9 @@ def bench_training_loop(budget: Budget) -> list[Measurement]:
             runs[key].append(training_frames_per_s(cfg))
     results = []
     for loop in loops:
-        frames_per_s = {exploration: statistics.median(runs[loop, exploration]) for exploration in ("gaussian", "egreedy")}
+        frames_per_s = {
+            exploration: statistics.median(runs[loop, exploration]) for exploration in ("gaussian", "egreedy")
+        }
         for exploration, value in frames_per_s.items():
             results.append(Measurement("training", f"{loop}, {exploration}", value, "frames/s"))
         ratio = frames_per_s["egreedy"] / frames_per_s["gaussian"]
@@ -376,7 +417,12 @@ def default_config(*overrides: str) -> DictConfig:
 def plain_config_of(cfg: DictConfig) -> PlainConfig:
     """The plain reference's settings for the app's composed ``cfg`` (a gymnasium env, one hidden width)."""
     algo, dynamics = cfg.algo, cfg.dynamics
-    if len({*algo.num_cells}) != 1 or len({*dynamics.num_cells}) != 1 or algo.target_update != "hard" or not algo.double_dqn:
+    if (
+        len({*algo.num_cells}) != 1
+        or len({*dynamics.num_cells}) != 1
+        or algo.target_update != "hard"
+        or not algo.double_dqn
+    ):
         raise ValueError("the plain reference implements equal hidden layers, hard target copies and double DQN only")
     return PlainConfig(
         env_id=resolve_env_id(cfg.env.name),
@@ -420,14 +466,25 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     against the same plain figure.
     """
     frames = budget.reference_frames
-    plain_variants = sorted((exploration, envs, per_batch) for exploration in ("gaussian", "egreedy") for envs, per_batch in ((1, 16), (16, 64)))
+    plain_variants = sorted(
+        (exploration, envs, per_batch)
+        for exploration in ("gaussian", "egreedy")
+        for envs, per_batch in ((1, 16), (16, 64))
+    )
     app_variants = [(*variant, False) for variant in plain_variants] + [("gaussian", 16, 64, True)]
     app, plain = {v: [] for v in app_variants}, {v: [] for v in plain_variants}
     for _ in range(budget.train_repeats):
         for exploration, envs, per_batch, compiled in app_variants:
-            overrides = (f"exploration={exploration}", f"env.num_envs={envs}", f"collector.frames_per_batch={per_batch}", f"train.max_frames={frames}")
+            overrides = (
+                f"exploration={exploration}",
+                f"env.num_envs={envs}",
+                f"collector.frames_per_batch={per_batch}",
+                f"train.max_frames={frames}",
+            )
             if compiled:
-                app[exploration, envs, per_batch, compiled].append(app_frames_per_s_in_new_process(*overrides, "compile=true"))
+                app[exploration, envs, per_batch, compiled].append(
+                    app_frames_per_s_in_new_process(*overrides, "compile=true")
+                )
                 continue
             cfg = default_config(*overrides)
             app[exploration, envs, per_batch, compiled].append(training_frames_per_s(cfg))
@@ -492,7 +549,11 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
     egreedy_agent = build_agent(paper_config("algo.eps_end=1.0", "exploration=egreedy"), env)
     collectors = {
         name: Collector(make_env("mountaincar", seed=0), policy, frames_per_batch=1, total_frames=-1)
-        for name, policy in (("gaussian", agent.explorer.policy), ("egreedy", egreedy_agent.explorer.policy), ("random", None))
+        for name, policy in (
+            ("gaussian", agent.explorer.policy),
+            ("egreedy", egreedy_agent.explorer.policy),
+            ("random", None),
+        )
     }
     steps = {f"collector step, {name} policy": functools.partial(next, iter(c)) for name, c in collectors.items()}
     buffer = make_replay_buffer(cfg.buffer, cfg.device)
@@ -532,7 +593,9 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     agents = {"eager": build_agent(cfg, env), "compiled": build_agent(default_config("compile=true"), env)}
     buffer = make_replay_buffer(cfg.buffer, cfg.device)
     transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma)
-    collector = Collector(env, agents["eager"].explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=2560)
+    collector = Collector(
+        env, agents["eager"].explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=2560
+    )
     for batch in collector:
         stored = transitions(batch)
         if stored is not None:
@@ -541,7 +604,10 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     for agent in agents.values():
         fit_q_input_norm(agent, buffer)
         agent.explorer.training.model.fit_normalization(buffer, next_observation_key=SUCCESSOR_KEY)
-    observation_size, num_actions = env.observation_spec_unbatched["observation"].shape[-1], env.action_spec_unbatched.space.n
+    observation_size, num_actions = (
+        env.observation_spec_unbatched["observation"].shape[-1],
+        env.action_spec_unbatched.space.n,
+    )
     plain = PlainAgent(plain_config_of(cfg), observation_size, num_actions, rng=np.random.default_rng(0))
     plain_buffer = plain_buffer_of(buffer, cfg.algo.gamma)
     parts = {}
@@ -551,7 +617,9 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     parts["Q update, plain reference"] = functools.partial(plain.update_q, plain_buffer)
     parts["dynamics update, plain reference"] = functools.partial(plain.update_dynamics, plain_buffer)
     parts["  of which: buffer.sample(256), train(cfg)"] = functools.partial(buffer.sample, cfg.algo.batch_size)
-    parts["  of which: buffer.sample(256), plain reference"] = functools.partial(plain_buffer.sample, cfg.algo.batch_size, plain.rng)
+    parts["  of which: buffer.sample(256), plain reference"] = functools.partial(
+        plain_buffer.sample, cfg.algo.batch_size, plain.rng
+    )
     timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     results = [Measurement("updates", name, seconds * 1e3, "ms/update") for name, seconds in timing.items()]
     for update in ("Q update", "dynamics update"):
@@ -593,7 +661,11 @@ SECTIONS: dict[str, Callable[[Budget], list[Measurement]]] = {
 def machine() -> dict[str, object]:
     cpu = platform.processor()
     if Path("/proc/cpuinfo").exists():
-        names = [line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("model name")]
+        names = [
+            line.split(":", 1)[1].strip()
+            for line in Path("/proc/cpuinfo").read_text().splitlines()
+            if line.startswith("model name")
+        ]
         cpu = names[0] if names else cpu
     return {
         "cpu": cpu,
@@ -634,7 +706,9 @@ def print_table(measurements: list[Measurement]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="short smoke run")
-    parser.add_argument("--out", type=Path, help="JSON output path (default: bench/results/throughput-<date>-<HHMM>.json)")
+    parser.add_argument(
+        "--out", type=Path, help="JSON output path (default: bench/results/throughput-<date>-<HHMM>.json)"
+    )
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
     parser.add_argument("--only", nargs="+", choices=list(SECTIONS), help="run these sections only (default: all)")
     parser.add_argument("--note", default="", help="free text stored in the JSON (e.g. which code was measured)")

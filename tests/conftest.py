@@ -1,4 +1,5 @@
 """Shared setup: one torch thread, a fixed seed, wandb off; the app tests' config and subprocess helpers."""
+
 from __future__ import annotations
 
 import csv
@@ -75,7 +76,11 @@ def run_app():
         """``env``: variables to set on top of this process's; a value of ``None`` unsets one."""
         return subprocess.run(
             [sys.executable, str(REPO / "train.py"), *args, *quick_for(args)],
-            cwd=cwd, env=_environment({"WANDB_MODE": "disabled", **(env or {})}), capture_output=True, text=True, timeout=600,
+            cwd=cwd,
+            env=_environment({"WANDB_MODE": "disabled", **(env or {})}),
+            capture_output=True,
+            text=True,
+            timeout=600,
         )
 
     return run

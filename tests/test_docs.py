@@ -1,4 +1,5 @@
 """The Python examples in docs/ run as written."""
+
 from __future__ import annotations
 
 import re

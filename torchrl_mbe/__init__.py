@@ -9,6 +9,7 @@ The components live in :mod:`torchrl_mbe.modules`, :mod:`torchrl_mbe.objectives`
 and :mod:`torchrl_mbe.envs`; the Hydra app in :mod:`torchrl_mbe.app` and the
 report in :mod:`torchrl_mbe.report` build on them (docs/architecture.md).
 """
+
 from importlib.metadata import version as _version
 
 from torchrl_mbe.envs import SUPPORTED_ENVS, BatchedMountainCarEnv, MountainCarDynamics, make_env
@@ -27,20 +28,20 @@ from torchrl_mbe.modules import (
 from torchrl_mbe.objectives import DynamicsLoss
 
 __all__ = [
+    "SUPPORTED_ENVS",
     "AnnealedEGreedyModule",
     "BatchedMountainCarEnv",
     "DiagonalGaussianDensity",
     "DynamicsLoss",
     "DynamicsModel",
     "GaussianKernelNovelty",
-    "KernelDensityNovelty",
     "KNearestNovelty",
+    "KernelDensityNovelty",
     "ModelBasedExplorationPolicy",
     "MountainCarDynamics",
     "NoveltyPlanner",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
-    "SUPPORTED_ENVS",
     "make_env",
 ]
 

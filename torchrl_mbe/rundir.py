@@ -14,24 +14,25 @@ A run directory holds:
 * ``visited_states.npy`` with ``visited_episodes.npy`` when the run records the
   states it visited (the coverage experiment).
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
 from typing import Any
 
 __all__ = [
-    "SUMMARY",
-    "CHECKPOINT",
     "BEST_POLICY",
-    "VISITED_STATES",
-    "VISITED_EPISODES",
-    "TABLES",
-    "SUMMARY_FIELDS",
+    "CHECKPOINT",
     "EXPLORATION_PREFIX",
+    "SUMMARY",
+    "SUMMARY_FIELDS",
+    "TABLES",
     "UPDATE_COUNTERS",
-    "table_file",
+    "VISITED_EPISODES",
+    "VISITED_STATES",
     "is_int",
     "is_number",
+    "table_file",
 ]
 
 SUMMARY = "summary.json"
@@ -43,7 +44,16 @@ VISITED_EPISODES = "visited_episodes.npy"
 TABLES: dict[str, tuple[str, ...]] = {
     "episodes": ("episode", "frames", "return", "length", "reached_goal", "eps", "wall_time_s"),
     "evaluations": ("frames", "episode", "eval_return_mean", "eval_return_std", "eval_success_rate"),
-    "updates": ("frames", "updates", "loss_q", "loss_dynamics", "dynamics_val_error", "loss_rnd", "eps", "frames_per_s"),
+    "updates": (
+        "frames",
+        "updates",
+        "loss_q",
+        "loss_dynamics",
+        "dynamics_val_error",
+        "loss_rnd",
+        "eps",
+        "frames_per_s",
+    ),
 }
 """The CSV tables of a run and their columns."""
 

@@ -3,6 +3,7 @@
 Hydra finds launchers in the ``hydra_plugins`` namespace package only, so this module
 is the plugin's shim; what it does lives in :mod:`torchrl_mbe.app.sweeps`.
 """
+
 from __future__ import annotations
 
 import logging
@@ -21,7 +22,9 @@ class PopulationLauncher(BasicLauncher):
 
     def launch(self, job_overrides: Sequence[Sequence[str]], initial_job_idx: int) -> Sequence[JobReturn]:
         jobs = group_seeds(job_overrides, can_group=self._trains_together)
-        log.info(f"hydra/launcher=population: {len(job_overrides)} runs as {len(jobs)} jobs (consecutive seeds as populations)")
+        log.info(
+            f"hydra/launcher=population: {len(job_overrides)} runs as {len(jobs)} jobs (consecutive seeds as populations)"
+        )
         return super().launch(jobs, initial_job_idx)
 
     def _trains_together(self, overrides: list[str]) -> bool:

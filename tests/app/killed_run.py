@@ -4,6 +4,7 @@ POINT ``frames``: just after the first batch that brings the run to ``FRAMES`` f
 ``checkpoint-write``: half-way through writing the first checkpoint at ``FRAMES`` frames or more
 (the ``.partial`` file holds half its bytes, the previous checkpoint stands).
 """
+
 from __future__ import annotations
 
 import io

@@ -1,4 +1,5 @@
 """DeepSea in the app: the planner's rule with the true dynamics (conf/experiment/deepsea_oracle.yaml) and with a learned model (deepsea_learned.yaml, deepsea_categorical.yaml)."""
+
 from __future__ import annotations
 
 import json
@@ -10,7 +11,12 @@ from torchrl_mbe.app import train
 
 def test_the_oracle_preset_solves_deepsea_10_where_dithering_needs_1000_episodes(compose_default, tmp_path):
     cfg = compose_default("experiment=deepsea_oracle", "env.size=10", "train.episodes=500")
-    assert cfg.exploration.window is None and cfg.env.num_envs == 1 and cfg.algo.n_steps == 10 and cfg.dynamics.name == "oracle"
+    assert (
+        cfg.exploration.window is None
+        and cfg.env.num_envs == 1
+        and cfg.algo.n_steps == 10
+        and cfg.dynamics.name == "oracle"
+    )
     summary = train(cfg, tmp_path)
     assert summary["solved"] and summary["episodes"] <= 300  # 2**10 = 1,024 episodes for dithering to find it once
     assert summary["first_success_episode"] <= 100
@@ -29,41 +35,59 @@ def test_a_population_plans_with_the_oracle_one_grid_per_member(compose_default,
 def test_the_learned_preset_solves_deepsea_10_on_every_member_within_400_episodes(compose_default, tmp_path):
     # With the preset's earlier model (two standardized layers of 64, the default variance floor) seeds 0-4
     # solved 3 of 5 within 1,500 episodes (docs/results.md, section 6); dithering needs 1,024 to find it once.
-    cfg = compose_default("experiment=deepsea_learned", "env.size=10", "population=3", "train.episodes=400", "eval.every_frames=1000")
+    cfg = compose_default(
+        "experiment=deepsea_learned", "env.size=10", "population=3", "train.episodes=400", "eval.every_frames=1000"
+    )
     assert cfg.dynamics.name == "mlp" and cfg.dynamics.prior_scale > 0 and not cfg.dynamics.normalize
     train(cfg, tmp_path)
     for seed in range(3):
         summary = json.loads((tmp_path / f"seed{seed}" / "summary.json").read_text())
-        assert summary["solved"], f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+        assert summary["solved"], (
+            f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+        )
 
 
 def test_the_categorical_preset_solves_deepsea_10_on_every_member_within_400_episodes(compose_default, tmp_path):
     # A softmax model without the offset (the prior added to its logits) solved 0 of seeds 0-1 at N=10 (docs/results.md, section 6).
-    cfg = compose_default("experiment=deepsea_categorical", "env.size=10", "population=2", "train.episodes=400", "eval.every_frames=1000")
+    cfg = compose_default(
+        "experiment=deepsea_categorical", "env.size=10", "population=2", "train.episodes=400", "eval.every_frames=1000"
+    )
     assert cfg.dynamics.output == "categorical" and cfg.dynamics.prior_scale > 0
     train(cfg, tmp_path)
     for seed in range(2):
         summary = json.loads((tmp_path / f"seed{seed}" / "summary.json").read_text())
-        assert summary["solved"], f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+        assert summary["solved"], (
+            f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+        )
 
 
-def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line_before_training(compose_default, tmp_path, monkeypatch):
+def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line_before_training(
+    compose_default, tmp_path, monkeypatch
+):
     from torchrl_mbe.app import ConfigError, replay
 
     monkeypatch.setattr(replay, "_available_memory_bytes", lambda: 2**30)  # 1 GiB free
     cfg = compose_default("experiment=deepsea_oracle", "env.size=50", "population=5", "buffer.size=20000")
-    with pytest.raises(ConfigError, match=r"buffer.size=20000: 5 x 20,000 transitions of 2,500-feature observations take about 2.8 GiB, more than the 1.0 GiB available"):
+    with pytest.raises(
+        ConfigError,
+        match=r"buffer.size=20000: 5 x 20,000 transitions of 2,500-feature observations take about 2.8 GiB, more than the 1.0 GiB available",
+    ):
         train(cfg, tmp_path)
     assert not (tmp_path / "seed0" / "episodes.csv").exists()
 
 
-def test_a_replay_buffer_whose_checkpoints_do_not_fit_on_disk_is_refused_in_one_line_before_training(compose_default, tmp_path, monkeypatch):
+def test_a_replay_buffer_whose_checkpoints_do_not_fit_on_disk_is_refused_in_one_line_before_training(
+    compose_default, tmp_path, monkeypatch
+):
     # A checkpoint keeps the whole preallocated buffer: DeepSea-50's default run writes 3 GB at its first one.
     from torchrl_mbe.app import ConfigError, replay
 
     monkeypatch.setattr(replay, "_free_disk_bytes", lambda path: 2**30)  # 1 GiB free
     cfg = compose_default("experiment=deepsea_oracle", "env.size=50", "buffer.size=20000", "train.max_frames=100")
     run_dir = tmp_path / "run"
-    with pytest.raises(ConfigError, match=rf"buffer.size=20000: 20,000 transitions .* take about 0.6 GiB, and every checkpoint keeps them: writing one needs 1.1 GiB, more than the 1.0 GiB free for {run_dir}"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"buffer.size=20000: 20,000 transitions .* take about 0.6 GiB, and every checkpoint keeps them: writing one needs 1.1 GiB, more than the 1.0 GiB free for {run_dir}",
+    ):
         train(cfg, run_dir)
     assert not (run_dir / "episodes.csv").exists()

@@ -46,8 +46,16 @@ def test_n_step_transitions_stop_at_the_episode_end_and_bootstrap_only_through_a
 def test_learning_rate_decays_linearly_after_learning_starts_and_then_stays(compose_config):
     from torchrl_mbe.app.dqn import q_learning_rate
 
-    algo = compose_config("algo.lr=0.01", "algo.lr_decay_frames=1000", "algo.lr_end_factor=0.1", "algo.learning_starts=100").algo
-    assert [round(q_learning_rate(algo, frames), 6) for frames in (0, 100, 600, 1100, 5000)] == [0.01, 0.01, 0.0055, 0.001, 0.001]
+    algo = compose_config(
+        "algo.lr=0.01", "algo.lr_decay_frames=1000", "algo.lr_end_factor=0.1", "algo.learning_starts=100"
+    ).algo
+    assert [round(q_learning_rate(algo, frames), 6) for frames in (0, 100, 600, 1100, 5000)] == [
+        0.01,
+        0.01,
+        0.0055,
+        0.001,
+        0.001,
+    ]
     assert q_learning_rate(compose_config().algo, 10_000) == compose_config().algo.lr  # no decay by default
 
 
@@ -72,8 +80,10 @@ def test_rnd_adds_its_intrinsic_reward_to_what_the_q_network_learns_and_its_pred
     stored = ReplayTransitions(n_steps=1, gamma=0.99, intrinsic_coef=rnd.intrinsic_coef)(batch)
     assert torch.allclose(stored["next", "reward"], (batch["next", "reward"] + 0.5 * intrinsic).reshape(-1, 1))
     observations = stored.select(("next", "observation"))
-    whole_batch_loss = RNDLoss(rnd.loss.predictor_network, rnd.loss.target_network, obs_rms=rnd.rnd.obs_rms, update_fraction=1.0)
-    error = lambda: whole_batch_loss(observations)["loss_predictor"].item()  # noqa: E731
+    whole_batch_loss = RNDLoss(
+        rnd.loss.predictor_network, rnd.loss.target_network, obs_rms=rnd.rnd.obs_rms, update_fraction=1.0
+    )
+    error = lambda: whole_batch_loss(observations)["loss_predictor"].item()
     before = error()
     for _ in range(100):
         rnd.after_q_update(observations)
@@ -91,14 +101,14 @@ def test_a_noisy_q_network_explores_by_its_noise_and_is_greedy_without_it(compos
     cfg, env, agent = build_agent(compose_config, "exploration=noisy")
     assert agent.explorer.policy is agent.actor and agent.eps == 0.0  # no eps: the noise explores
     states = TensorDict({"observation": torch.randn(256, 2) * 0.3}, [256])
-    act = lambda: agent.actor(states.clone())["action"].argmax(-1)  # noqa: E731
+    act = lambda: agent.actor(states.clone())["action"].argmax(-1)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         greedy = act()
         assert torch.equal(greedy, act())
     buffer = make_replay_buffer(cfg.buffer, "cpu")
     rollout = env.rollout(64, break_when_any_done=False)
     buffer.extend(ReplayTransitions(1, 0.99)(rollout))
-    noise_scale = lambda: next(p for name, p in agent.actor.named_parameters() if name.endswith("weight_sigma"))  # noqa: E731
+    noise_scale = lambda: next(p for name, p in agent.actor.named_parameters() if name.endswith("weight_sigma"))
     sigma = noise_scale().detach().clone()
     with set_exploration_type(ExplorationType.RANDOM):
         noisy = act()

@@ -1,4 +1,5 @@
 """The explorer registry: one entry per ``exploration=`` option, one shape for the loop, a new explorer in one place."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -36,10 +37,16 @@ def test_every_explorer_gives_the_loop_the_same_shape_and_its_state_survives_a_c
     assert rebuilt.explorer.state_dict().keys() == explorer.state_dict().keys()
 
 
-def test_the_diagonal_explorers_variance_floor_and_addition_reach_its_density_and_the_raw_model_its_planner(compose_config):
+def test_the_diagonal_explorers_variance_floor_and_addition_reach_its_density_and_the_raw_model_its_planner(
+    compose_config,
+):
     cfg = compose_config(
-        "exploration=diagonal", "exploration.min_variance=1e-3", "exploration.added_variance=1e-2", "dynamics.normalize=false",
-        "dynamics.prior_scale=25", "dynamics.prior_num_cells=[32]",
+        "exploration=diagonal",
+        "exploration.min_variance=1e-3",
+        "exploration.added_variance=1e-2",
+        "dynamics.normalize=false",
+        "dynamics.prior_scale=25",
+        "dynamics.prior_num_cells=[32]",
     )
     agent = build_dqn_agent(cfg, make_env("mountaincar", num_envs=4, seed=0))
     planner = agent.explorer.policy.planner

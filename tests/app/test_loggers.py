@@ -1,4 +1,5 @@
 """The run's loggers as a user reads them: TensorBoard's scalars match the CSV tables."""
+
 from __future__ import annotations
 
 import sys
@@ -52,8 +53,13 @@ def test_a_resumed_run_hides_the_scalars_logged_after_its_checkpoint(tmp_path, c
     assert tensorboard_scalars(tmp_path)["updates/loss_q"] == [(100, 1.0), (200, 2.0), (300, 30.0)]
 
 
-def test_logger_tensorboard_without_the_package_names_what_to_install_before_the_run_starts(tmp_path, compose_config, monkeypatch):
+def test_logger_tensorboard_without_the_package_names_what_to_install_before_the_run_starts(
+    tmp_path, compose_config, monkeypatch
+):
     monkeypatch.setitem(sys.modules, "tensorboard", None)  # import tensorboard now fails, as where it is not installed
-    with pytest.raises(ConfigError, match=r'^logger=tensorboard: the tensorboard package is not installed; pip install "torchrl-mbe\[tensorboard\]"'):
+    with pytest.raises(
+        ConfigError,
+        match=r'^logger=tensorboard: the tensorboard package is not installed; pip install "torchrl-mbe\[tensorboard\]"',
+    ):
         train(compose_config("logger=tensorboard"), tmp_path)
     assert not any(tmp_path.iterdir())

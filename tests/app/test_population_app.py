@@ -1,4 +1,5 @@
 """``population=M``: M agents in one process, each member's run directory a single run's, members that never mix."""
+
 from __future__ import annotations
 
 import csv
@@ -43,15 +44,29 @@ def test_a_population_writes_one_single_run_directory_per_member(tmp_path, compo
 
 
 def test_a_gymnasium_env_trains_as_a_population_each_member_evaluated_in_its_own_copies(tmp_path, compose_config):
-    overrides = ("env=lunarlander", "population=2", "env.num_envs=2", "train.max_frames=256", "eval.every_frames=128", "eval.episodes=2")
-    train(compose_config(*overrides, "eval.final_episodes=2", "algo.learning_starts=64", "dynamics.learning_starts=64", *SMALL), tmp_path)
+    overrides = (
+        "env=lunarlander",
+        "population=2",
+        "env.num_envs=2",
+        "train.max_frames=256",
+        "eval.every_frames=128",
+        "eval.episodes=2",
+    )
+    train(
+        compose_config(
+            *overrides, "eval.final_episodes=2", "algo.learning_starts=64", "dynamics.learning_starts=64", *SMALL
+        ),
+        tmp_path,
+    )
     evaluations = {}
     for seed in (0, 1):
         summary = json.loads((tmp_path / f"seed{seed}" / SUMMARY).read_text())
         assert summary["env"] == "LunarLander-v3" and summary["frames"] == 256 and summary["q_updates"] > 0
         with (tmp_path / f"seed{seed}" / table_file("evaluations")).open() as handle:
             evaluations[seed] = [float(row["eval_return_mean"]) for row in csv.DictReader(handle)]
-    assert len(evaluations[0]) == 3 and evaluations[0] != evaluations[1]  # two periodic and the final, each member's own
+    assert (
+        len(evaluations[0]) == 3 and evaluations[0] != evaluations[1]
+    )  # two periodic and the final, each member's own
 
 
 def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp_path, compose_config):
@@ -62,9 +77,15 @@ def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp
     policies = []
     for seed in (0, 1):
         actor = make_q_actor(
-            observation_size, env.action_spec_unbatched, cfg.algo.num_cells, torch.device("cpu"), input_norm=Standardize(observation_size)
+            observation_size,
+            env.action_spec_unbatched,
+            cfg.algo.num_cells,
+            torch.device("cpu"),
+            input_norm=Standardize(observation_size),
         )
-        actor.load_state_dict(load_safely(tmp_path / f"seed{seed}" / BEST_POLICY)["actor"])  # strict: a single actor's keys
+        actor.load_state_dict(
+            load_safely(tmp_path / f"seed{seed}" / BEST_POLICY)["actor"]
+        )  # strict: a single actor's keys
         policies.append(actor)
     states = TensorDict(observation=torch.randn(64, observation_size), batch_size=[64])
     values = [policy(states.clone())["action_value"] for policy in policies]
@@ -72,7 +93,9 @@ def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(tmp
 
 
 @pytest.mark.parametrize("exploration", ["gaussian", "egreedy", "noisy", "rnd"])
-def test_changing_one_members_data_and_parameters_leaves_every_other_members_updates_unchanged(exploration, compose_config):
+def test_changing_one_members_data_and_parameters_leaves_every_other_members_updates_unchanged(
+    exploration, compose_config
+):
     clipping = ("algo.max_grad_norm=0.01", "dynamics.max_grad_norm=0.01")  # every member's gradient clipped
     cfg = compose_config("population=3", f"exploration={exploration}", "env.num_envs=4", *clipping, *SMALL)
     trained = [_learn_once(cfg, perturb_member=None), _learn_once(cfg, perturb_member=1)]
@@ -90,7 +113,9 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
     agent = build_dqn_agent(cfg, env)
     batch = next(iter(Collector(env, agent.explorer.policy, frames_per_batch=128 * 3, total_frames=-1)))
     if perturb_member is not None:
-        batch["observation"][:, perturb_member] *= 1.5  # a scale, not only a shift: the input statistics' spread changes too
+        batch["observation"][:, perturb_member] *= (
+            1.5  # a scale, not only a shift: the input statistics' spread changes too
+        )
         batch["next", "observation"][:, perturb_member] -= 0.5
         with torch.no_grad():
             for parameter in agent.explorer.policy.parameters():
@@ -104,14 +129,22 @@ def _learn_once(cfg, *, perturb_member: int | None) -> list[tuple[str, torch.Ten
     target = agent.q_loss.target_value_network_params.flatten_keys(".")
     # RND's predictor learns from the sampled batch (its target never learns)
     predictor = agent.explorer.rnd.predictor_network.state_dict() if isinstance(agent.explorer, RNDExplorer) else {}
-    stacked = [*state.items(), *target.items(), *predictor.items()]  # the windows, (num_envs, M, ...), are filled while collecting: equal
-    return [(name, value) for name, value in stacked if isinstance(value, torch.Tensor) and not value.is_meta and value.ndim and value.shape[0] == 3]
+    stacked = [
+        *state.items(),
+        *target.items(),
+        *predictor.items(),
+    ]  # the windows, (num_envs, M, ...), are filled while collecting: equal
+    return [
+        (name, value)
+        for name, value in stacked
+        if isinstance(value, torch.Tensor) and not value.is_meta and value.ndim and value.shape[0] == 3
+    ]
 
 
 def test_a_noisy_populations_q_update_resamples_every_members_noise(compose_config):
     cfg = compose_config("population=3", "exploration=noisy", "env.num_envs=2", *SMALL)
     agent = build_dqn_agent(cfg, make_run_env(cfg, num_envs=2, seed=0))
-    noise = lambda: agent.actor.state_dict()["module.0.module.1.params.0.weight_epsilon"].clone()  # noqa: E731  [M, hidden, features]
+    noise = lambda: agent.actor.state_dict()["module.0.module.1.params.0.weight_epsilon"].clone()
     before = noise()
     agent.explorer.after_q_update(TensorDict())
     after = noise()
@@ -135,15 +168,27 @@ def test_a_population_it_cannot_train_is_refused_in_one_line_naming_the_setting(
 @pytest.mark.parametrize("exploration", ["gaussian", "rnd"])
 def test_a_population_resumes_where_it_stopped(exploration, tmp_path, compose_config):
     # No final evaluation: at the first budget it would draw from torch's generator, which a run that never stopped does not.
-    overrides = ("population=2", f"exploration={exploration}", "env.num_envs=2", "eval.episodes=0", "eval.final_episodes=0", "train.checkpoint_every_frames=128", *SMALL)
+    overrides = (
+        "population=2",
+        f"exploration={exploration}",
+        "env.num_envs=2",
+        "eval.episodes=0",
+        "eval.final_episodes=0",
+        "train.checkpoint_every_frames=128",
+        *SMALL,
+    )
     whole = train(compose_config(*overrides), tmp_path / "whole")
     train(compose_config(*overrides, "train.max_frames=160"), tmp_path / "resumed")
     resumed = train(compose_config(*overrides, "resume=true"), tmp_path / "resumed")
     for before, after in zip(whole["members"], resumed["members"]):
         assert after["frames"] == before["frames"] and after["episodes"] == before["episodes"]
     for seed in (0, 1):
-        episodes = [(tmp_path / run / f"seed{seed}" / table_file("episodes")).read_text() for run in ("whole", "resumed")]
+        episodes = [
+            (tmp_path / run / f"seed{seed}" / table_file("episodes")).read_text() for run in ("whole", "resumed")
+        ]
         columns = [[line.split(",")[:5] for line in text.splitlines()] for text in episodes]
         assert columns[0] == columns[1]  # the same episodes, wall times aside
     agents = [load_safely(tmp_path / run / CHECKPOINT)["agent"] for run in ("whole", "resumed")]
-    torch.testing.assert_close(agents[1], agents[0], rtol=0, atol=0)  # every network, statistic and optimizer, bit for bit
+    torch.testing.assert_close(
+        agents[1], agents[0], rtol=0, atol=0
+    )  # every network, statistic and optimizer, bit for bit

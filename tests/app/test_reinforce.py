@@ -32,7 +32,10 @@ def test_reinforce_trains_and_writes_the_same_run_files_as_dqn(tmp_path, read_ta
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     episodes = read_table(tmp_path, "episodes")
     assert tuple(episodes[0]) == TABLES["episodes"]
-    assert [(row["episode"], row["frames"], float(row["eps"])) for row in episodes] == [("1", "200", 0.0), ("2", "400", 0.0)]
+    assert [(row["episode"], row["frames"], float(row["eps"])) for row in episodes] == [
+        ("1", "200", 0.0),
+        ("2", "400", 0.0),
+    ]
     assert [row["frames"] for row in read_table(tmp_path, "evaluations")] == ["200", "400", "400"]  # periodic, final
     actor_state = torch.load(tmp_path / CHECKPOINT, weights_only=True)["agent"]["actor"]
     biases = [value for name, value in actor_state.items() if name.endswith("bias")]
@@ -127,4 +130,6 @@ def test_train_py_runs_reinforce(tmp_path, run_app):
 def _episode(rewards: list[float], **entries: torch.Tensor) -> TensorDict:
     done = torch.zeros(len(rewards), 1, dtype=torch.bool)
     done[-1] = True
-    return TensorDict({**entries, "next": {"reward": torch.tensor(rewards).unsqueeze(-1), "done": done}}, [len(rewards)])
+    return TensorDict(
+        {**entries, "next": {"reward": torch.tensor(rewards).unsqueeze(-1), "done": done}}, [len(rewards)]
+    )

@@ -1,4 +1,5 @@
 """A run killed at any moment and resumed ends exactly as if it had never stopped; files load without running code."""
+
 from __future__ import annotations
 
 import csv
@@ -40,7 +41,10 @@ def run_train(run_dir: Path, *args: str, kill: tuple[str, int] | None = None) ->
     script = [str(HERE / "killed_run.py"), kill[0], str(kill[1])] if kill else [str(HERE.parents[1] / "train.py")]
     return subprocess.run(
         [sys.executable, *script, *SHORT_DEFAULT_RUN, f"hydra.run.dir={run_dir}", *args],
-        env={**os.environ, "WANDB_MODE": "disabled"}, capture_output=True, text=True, timeout=600,
+        env={**os.environ, "WANDB_MODE": "disabled"},
+        capture_output=True,
+        text=True,
+        timeout=600,
     )
 
 
@@ -49,8 +53,14 @@ def run_files(run_dir: Path) -> dict:
     tables = {}
     for table in ("episodes", "evaluations", "updates"):
         with (run_dir / f"{table}.csv").open() as handle:
-            tables[table] = [{k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in csv.DictReader(handle)]
-    summary = {k: v for k, v in json.loads((run_dir / SUMMARY).read_text()).items() if "wall_time" not in k and k != "frames_per_s"}
+            tables[table] = [
+                {k: v for k, v in row.items() if k not in TIMING_COLUMNS} for row in csv.DictReader(handle)
+            ]
+    summary = {
+        k: v
+        for k, v in json.loads((run_dir / SUMMARY).read_text()).items()
+        if "wall_time" not in k and k != "frames_per_s"
+    }
     return {**tables, "summary": summary, "weights": load_safely(run_dir / CHECKPOINT)["agent"]["policy"]}
 
 
@@ -63,7 +73,9 @@ def uninterrupted(tmp_path_factory) -> dict:
 
 
 @pytest.mark.parametrize(
-    "kill", [("frames", 600), ("frames", 1300), ("checkpoint-write", 1536)], ids=["early", "mid-run", "checkpoint-write"]
+    "kill",
+    [("frames", 600), ("frames", 1300), ("checkpoint-write", 1536)],
+    ids=["early", "mid-run", "checkpoint-write"],
 )
 def test_a_killed_and_resumed_run_ends_exactly_as_the_uninterrupted_one(tmp_path, uninterrupted, kill):
     killed = run_train(tmp_path, kill=kill)
@@ -74,14 +86,18 @@ def test_a_killed_and_resumed_run_ends_exactly_as_the_uninterrupted_one(tmp_path
     resumed = run_train(tmp_path, "resume=true")
     assert resumed.returncode == 0, resumed.stderr
     again = run_files(tmp_path)
-    assert again["summary"]["episodes"] >= 8 and len(again["evaluations"]) == 5  # episodes ended on both sides of the kill
+    assert (
+        again["summary"]["episodes"] >= 8 and len(again["evaluations"]) == 5
+    )  # episodes ended on both sides of the kill
     for part in ("episodes", "evaluations", "updates", "summary"):
         assert again[part] == uninterrupted[part], part
     torch.testing.assert_close(again["weights"], uninterrupted["weights"], rtol=0, atol=0)  # bit for bit
 
 
 @pytest.mark.parametrize("exploration", ["egreedy", "rnd"])
-def test_a_run_whose_policy_draws_random_numbers_resumes_on_the_same_random_stream(exploration, tmp_path, compose_config):
+def test_a_run_whose_policy_draws_random_numbers_resumes_on_the_same_random_stream(
+    exploration, tmp_path, compose_config
+):
     # The collector checks its policy once when built; e-greedy's check draws from torch's generator.
     overrides = (f"exploration={exploration}", "env.num_envs=2", "eval.final_episodes=0", "algo.num_cells=[16,16]")
     train(compose_config(*overrides), tmp_path / "whole")
@@ -104,7 +120,10 @@ class Payload:
 @pytest.mark.parametrize("file", [CHECKPOINT, BEST_POLICY])
 def test_a_file_that_carries_a_pickled_callable_is_refused_and_never_runs(tmp_path, compose_config, file):
     run_dir, marker = tmp_path / "run", tmp_path / "marker"
-    train(compose_config("train.max_frames=120", "eval.final_episodes=0", "eval.episodes=1", "eval.every_frames=100"), run_dir)
+    train(
+        compose_config("train.max_frames=120", "eval.final_episodes=0", "eval.episodes=1", "eval.every_frames=100"),
+        run_dir,
+    )
     saved = load_safely(run_dir / file)
     saved["payload"] = Payload(marker)
     torch.save(saved, run_dir / file)
@@ -119,6 +138,11 @@ def test_a_file_that_carries_a_pickled_callable_is_refused_and_never_runs(tmp_pa
 
 
 def test_checkpoints_and_best_policies_hold_only_what_a_weights_only_load_reads(tmp_path, compose_config):
-    train(compose_config("buffer=prioritized", "exploration=rnd", "algo.n_steps=3", "eval.episodes=1", "eval.every_frames=160"), tmp_path)
+    train(
+        compose_config(
+            "buffer=prioritized", "exploration=rnd", "algo.n_steps=3", "eval.episodes=1", "eval.every_frames=160"
+        ),
+        tmp_path,
+    )
     for file in (CHECKPOINT, BEST_POLICY):
         assert isinstance(torch.load(tmp_path / file, weights_only=True), dict)

@@ -1,4 +1,5 @@
 """The app on a task a user brings: any observation kind trains, the explorer follows the observation, bad input is one line."""
+
 from __future__ import annotations
 
 import json
@@ -23,8 +24,12 @@ pytest.importorskip("minigrid")
         ("Acrobot-v1", "delta"),  # Box
     ],
 )
-def test_a_task_of_every_observation_kind_trains_with_the_model_its_observation_gets(tmp_path, compose_config, env_id, model):
-    summary = train(compose_config("env=gym", f"env.name={env_id}", "train.episodes=1000"), tmp_path)  # Blackjack's hands are short
+def test_a_task_of_every_observation_kind_trains_with_the_model_its_observation_gets(
+    tmp_path, compose_config, env_id, model
+):
+    summary = train(
+        compose_config("env=gym", f"env.name={env_id}", "train.episodes=1000"), tmp_path
+    )  # Blackjack's hands are short
     assert summary["frames"] >= 300 and summary["dynamics_updates"] > 0 and summary["final_eval_return"] is not None
     assert summary["method"] == ("dqn+diagonal" if model == "categorical" else "dqn+gaussian")
 
@@ -33,14 +38,18 @@ def test_a_task_of_every_observation_kind_trains_with_the_model_its_observation_
 def test_every_explorer_trains_on_a_one_hot_task_with_what_it_names(tmp_path, compose_config, exploration):
     summary = train(compose_config("env=gym", "env.name=Taxi-v4", f"exploration={exploration}"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] > 0
-    assert summary["method"] == ("dqn+diagonal" if exploration == "gaussian" else f"dqn+{exploration}")  # composed without a command line: gaussian is matched
+    assert summary["method"] == (
+        "dqn+diagonal" if exploration == "gaussian" else f"dqn+{exploration}"
+    )  # composed without a command line: gaussian is matched
 
 
 def test_env_deepsea_alone_trains_as_the_categorical_preset(compose_default):
     matched = compose_default("env=deepsea", "env.size=30")
     match_observation(matched, config_observation_spec(matched), named=set())
     preset = compose_default("experiment=deepsea_categorical", "env.size=30")
-    settings = {key: OmegaConf.to_container(cfg, resolve=True) for key, cfg in (("matched", matched), ("preset", preset))}
+    settings = {
+        key: OmegaConf.to_container(cfg, resolve=True) for key, cfg in (("matched", matched), ("preset", preset))
+    }
     for differs in ("tag", "match_observation"):  # the preset's own run directories; it chooses its explorer itself
         for config in settings.values():
             config.pop(differs)
@@ -51,7 +60,9 @@ def test_what_the_command_line_names_wins_over_the_observation(compose_default):
     cfg = compose_default("env=deepsea", "exploration=gaussian", "dynamics.num_cells=[32]")
     changes = match_observation(cfg, config_observation_spec(cfg), named={"exploration", "dynamics.num_cells"})
     assert changes == ["algo.standardize_inputs=false"]
-    assert cfg.exploration.name == "gaussian" and cfg.dynamics.output == "delta" and list(cfg.dynamics.num_cells) == [32]
+    assert (
+        cfg.exploration.name == "gaussian" and cfg.dynamics.output == "delta" and list(cfg.dynamics.num_cells) == [32]
+    )
 
 
 def test_a_vector_observation_keeps_the_configured_explorer(compose_default):
@@ -59,15 +70,24 @@ def test_a_vector_observation_keeps_the_configured_explorer(compose_default):
     assert match_observation(cfg, config_observation_spec(cfg), named=set()) == []
 
 
-def test_env_name_alone_uses_the_generic_settings_make_kwargs_reach_gymnasium_and_the_run_says_what_it_chose(tmp_path, run_app):
-    result = run_app("env.name=FrozenLake8x8-v1", "+env.make_kwargs.is_slippery=false", "exploration.window=100", cwd=tmp_path)
+def test_env_name_alone_uses_the_generic_settings_make_kwargs_reach_gymnasium_and_the_run_says_what_it_chose(
+    tmp_path, run_app
+):
+    result = run_app(
+        "env.name=FrozenLake8x8-v1", "+env.make_kwargs.is_slippery=false", "exploration.window=100", cwd=tmp_path
+    )
     assert result.returncode == 0, result.stderr
-    assert "One-hot observation (64 cells): dynamics.output=categorical" in result.stdout + result.stderr  # the window named: exploration kept
+    assert (
+        "One-hot observation (64 cells): dynamics.output=categorical" in result.stdout + result.stderr
+    )  # the window named: exploration kept
     summary = json.loads(next((tmp_path / "runs").rglob("summary.json")).read_text())
     assert summary["env"] == "FrozenLake8x8-v1" and summary["method"] == "dqn+gaussian"
     assert summary["solved_threshold"] == 0.85  # gymnasium's reward_threshold
     config = OmegaConf.load(next((tmp_path / "runs").rglob(".hydra/config.yaml")))
-    assert config.env.make_kwargs == {"is_slippery": False} and list(config.algo.num_cells) == [256, 256]  # conf/tuned/gym_dqn.yaml
+    assert config.env.make_kwargs == {"is_slippery": False} and list(config.algo.num_cells) == [
+        256,
+        256,
+    ]  # conf/tuned/gym_dqn.yaml
 
 
 def test_a_minigrid_run_is_solved_by_its_success_rate(tmp_path, compose_config):
@@ -79,9 +99,18 @@ def test_a_minigrid_run_is_solved_by_its_success_rate(tmp_path, compose_config):
 @pytest.mark.parametrize(
     "overrides, message",
     [
-        (["env.name=FrozenLake-v1", "+env.make_kwargs.size=3"], r"FrozenLake-v1 does not take the keyword arguments \{'size': 3\}"),
-        (["env.name=nosuchsuite:Thing-v0"], "nosuchsuite:Thing-v0 needs the package 'nosuchsuite', which is not installed"),
-        (["env.name=MountainCarContinuous-v0"], r"MountainCarContinuous-v0 has a Box\(-1.0, 1.0, \(1,\), float32\) action space"),
+        (
+            ["env.name=FrozenLake-v1", "+env.make_kwargs.size=3"],
+            r"FrozenLake-v1 does not take the keyword arguments \{'size': 3\}",
+        ),
+        (
+            ["env.name=nosuchsuite:Thing-v0"],
+            "nosuchsuite:Thing-v0 needs the package 'nosuchsuite', which is not installed",
+        ),
+        (
+            ["env.name=MountainCarContinuous-v0"],
+            r"MountainCarContinuous-v0 has a Box\(-1.0, 1.0, \(1,\), float32\) action space",
+        ),
     ],
 )
 def test_a_task_the_app_cannot_train_is_one_line_before_any_work(tmp_path, compose_config, overrides, message):

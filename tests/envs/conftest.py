@@ -1,4 +1,5 @@
 """The env tests' shared helper: an episode of gymnasium's own env, replayed from a given state."""
+
 from __future__ import annotations
 
 import gymnasium as gym

@@ -96,7 +96,9 @@ def test_trajectories_equal_gymnasiums_over_200_steps_including_termination_and_
     ours, states = torch.stack(ours, 1), torch.stack(states, 1)
     lengths = []
     for i in range(num_envs):
-        observations, outcomes, final_state = gymnasium_episode("Acrobot-v1", starts[i], actions[:, i], max_episode_steps=horizon)
+        observations, outcomes, final_state = gymnasium_episode(
+            "Acrobot-v1", starts[i], actions[:, i], max_episode_steps=horizon
+        )
         length = len(outcomes)
         torch.testing.assert_close(ours[i, :length]["observation"], observations, atol=1e-5, rtol=0)
         assert outcomes == list(

@@ -6,6 +6,7 @@ bsuite is not a dependency (it pulls pandas, plotnine, scipy and scikit-image), 
 ``bsuite/environments/deep_sea.py`` (google-deepmind/bsuite, commit
 6d8f64997ca256473c3d10be021431facc5a14d7, the same file as in the bsuite 0.3.6 release).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -61,8 +62,14 @@ PATHS = {
     "always left": _always_left,
     "action 0": lambda mapping, row, column, step: 0,
     "action 1": lambda mapping, row, column, step: 1,
-    "right then left": lambda mapping, row, column, step: _always_right(mapping, row, column, step) if step < 2 else _always_left(mapping, row, column, step),
-    "right but the last": lambda mapping, row, column, step: _always_right(mapping, row, column, step) if row < len(mapping) - 1 else _always_left(mapping, row, column, step),
+    "right then left": lambda mapping, row, column, step: (
+        _always_right(mapping, row, column, step) if step < 2 else _always_left(mapping, row, column, step)
+    ),
+    "right but the last": lambda mapping, row, column, step: (
+        _always_right(mapping, row, column, step)
+        if row < len(mapping) - 1
+        else _always_left(mapping, row, column, step)
+    ),
     "random": lambda mapping, row, column, step: int(np.random.RandomState(step).randint(2)),
 }
 
@@ -112,7 +119,9 @@ def test_the_mapping_is_bsuites_reproducible_and_differs_between_seeds():
     assert mapping.tolist() == np.random.RandomState(42).binomial(1, 0.5, [20, 20]).tolist()
     assert torch.equal(mapping, BatchedDeepSeaEnv(3, size=20, mapping_seed=42, seed=1).action_mapping)
     assert not torch.equal(mapping, BatchedDeepSeaEnv(1, size=20, mapping_seed=43).action_mapping)
-    assert torch.equal(BatchedDeepSeaEnv(1, size=4, randomize_actions=False).action_mapping, torch.ones(4, 4, dtype=torch.int64))
+    assert torch.equal(
+        BatchedDeepSeaEnv(1, size=4, randomize_actions=False).action_mapping, torch.ones(4, 4, dtype=torch.int64)
+    )
 
 
 def test_envs_seeded_differently_play_the_same_mdp():
@@ -143,7 +152,9 @@ def test_the_always_correct_path_finds_the_treasure_and_returns_0_99(size):
 
 def test_the_all_left_path_returns_0_without_the_treasure():
     env = make_env("deepsea", num_envs=2, seed=0, size=10)
-    left = lambda td: td.set("action", torch.nn.functional.one_hot(1 - env.base_env.action_mapping[env.base_env.row, env.base_env.column], 2))
+    left = lambda td: td.set(
+        "action", torch.nn.functional.one_hot(1 - env.base_env.action_mapping[env.base_env.row, env.base_env.column], 2)
+    )
     rollout = env.rollout(100, left)
     assert rollout.shape == (2, 10)
     assert rollout["next", "reward"].abs().sum() == 0
@@ -188,7 +199,10 @@ def test_the_stochastic_variant_fails_right_moves_with_probability_one_over_n_an
     assert abs(at_treasure - success) < 5 * (success * (1 - success) / num_envs) ** 0.5
     torch.testing.assert_close(steps["reward"][:, :-1], torch.full((num_envs, size - 1, 1), -0.01 / size))  # no noise
     assert steps["reward"][:, -1].std() > 0.5  # N(0, 1) noise in the last row's end cells
-    torch.testing.assert_close(_play(BatchedDeepSeaEnv(num_envs, size=size, deterministic=False, randomize_actions=False, seed=0), right), steps)
+    torch.testing.assert_close(
+        _play(BatchedDeepSeaEnv(num_envs, size=size, deterministic=False, randomize_actions=False, seed=0), right),
+        steps,
+    )
 
 
 @pytest.mark.parametrize("deterministic", [True, False])
@@ -199,7 +213,9 @@ def test_specs(deterministic):
 
 @pytest.mark.parametrize("size", [0, -3, 2.5, "10", True, None])
 def test_a_bad_size_gets_one_clear_error(size):
-    with pytest.raises(ValueError, match=r"DeepSea's size must be an integer >= 1 \(bsuite's sweep: 10, 12, ..., 50\), got") as error:
+    with pytest.raises(
+        ValueError, match=r"DeepSea's size must be an integer >= 1 \(bsuite's sweep: 10, 12, ..., 50\), got"
+    ) as error:
         make_env("deepsea", num_envs=16, seed=0, size=size)
     assert "\n" not in str(error.value)
 
@@ -209,7 +225,9 @@ def test_make_env_errors_name_what_is_accepted():
         make_env("deepsea", backend="gym")
     with pytest.raises(ValueError, match=r"CartPole-v1 does not take the keyword arguments \{'size': 10\}"):
         make_env("cartpole", backend="gym", size=10)
-    with pytest.raises(ValueError, match=r"Unknown environment 'deep-sea': expected a gymnasium id .*deepsea \(DeepSea\)"):
+    with pytest.raises(
+        ValueError, match=r"Unknown environment 'deep-sea': expected a gymnasium id .*deepsea \(DeepSea\)"
+    ):
         make_env("deep-sea")
 
 

@@ -1,4 +1,5 @@
 """Exact resume: a torch env's ``state_dict`` loaded into a fresh env makes it go on exactly as the saved one."""
+
 from __future__ import annotations
 
 import copy

@@ -1,4 +1,5 @@
 """GymBatchEnv plays the episodes TorchRL's own SerialEnv of GymEnv copies plays, for any batch shape."""
+
 from __future__ import annotations
 
 from functools import partial
@@ -38,13 +39,17 @@ def random_actions(env, seed: int = 1):
     return policy
 
 
-@pytest.mark.parametrize("env_id", ["LunarLander-v3", "CartPole-v1", "FrozenLake-v1"])  # FrozenLake: one-hot observations
+@pytest.mark.parametrize(
+    "env_id", ["LunarLander-v3", "CartPole-v1", "FrozenLake-v1"]
+)  # FrozenLake: one-hot observations
 @pytest.mark.parametrize("batch_shape", [(3,), (2, 3)], ids=str)
 def test_steps_and_partial_resets_equal_a_serial_env_of_gym_envs(env_id, batch_shape):
     reference, env = seeded(serial_gym_envs(env_id, batch_shape)), seeded(GymBatchEnv(env_id, batch_shape))
     expected = reference.rollout(300, random_actions(reference), break_when_any_done=False)  # done copies reset alone
     played = env.rollout(300, random_actions(env), break_when_any_done=False)
-    assert expected["next", "done"].sum() >= 2 * len(expected["next", "done"].reshape(-1, 300))  # several episodes a copy
+    assert expected["next", "done"].sum() >= 2 * len(
+        expected["next", "done"].reshape(-1, 300)
+    )  # several episodes a copy
     assert set(played.keys(True, True)) == set(expected.keys(True, True))
     for key in expected.keys(True, True):
         assert torch.equal(played[key], expected[key]), key
@@ -52,9 +57,14 @@ def test_steps_and_partial_resets_equal_a_serial_env_of_gym_envs(env_id, batch_s
 
 def test_finished_copies_wait_while_the_others_play_their_first_episodes():
     # A (2, 3) batch seeded as six SerialEnv workers, which pause finished copies the same way.
-    reference, env = seeded(SerialEnv(6, partial(GymEnv, "LunarLander-v3"))), seeded(GymBatchEnv("LunarLander-v3", (2, 3)))
+    reference, env = (
+        seeded(SerialEnv(6, partial(GymEnv, "LunarLander-v3"))),
+        seeded(GymBatchEnv("LunarLander-v3", (2, 3))),
+    )
     for _ in range(2):  # and the next rollout starts fresh episodes from where each copy's generator stands
-        expected = reference.rollout(2000, random_actions(reference), break_when_any_done=False, break_when_all_done=True)
+        expected = reference.rollout(
+            2000, random_actions(reference), break_when_any_done=False, break_when_all_done=True
+        )
         played = env.rollout(2000, random_actions(env), break_when_any_done=False, break_when_all_done=True)
         assert played.shape[:2] == (2, 3)
         ends = expected["next", "done"].squeeze(-1).int().argmax(-1)

@@ -30,11 +30,15 @@ def test_an_unknown_name_gets_one_clear_error_naming_what_is_supported():
 
 
 @pytest.mark.parametrize(
-    "spec", [OneHot(3), Categorical(3), Composite(action=OneHot(3))], ids=["one-hot", "categorical", "a QValueActor's Composite"]
+    "spec",
+    [OneHot(3), Categorical(3), Composite(action=OneHot(3))],
+    ids=["one-hot", "categorical", "a QValueActor's Composite"],
 )
 def test_oracle_dynamics_equals_gymnasium_mountaincar_step(spec):
     generator = torch.Generator().manual_seed(0)
-    states = torch.stack([torch.rand(200, generator=generator) * 1.8 - 1.2, torch.rand(200, generator=generator) * 0.14 - 0.07], -1)
+    states = torch.stack(
+        [torch.rand(200, generator=generator) * 1.8 - 1.2, torch.rand(200, generator=generator) * 0.14 - 0.07], -1
+    )
     states[:10, 0] = -1.2  # at the left wall, moving left
     states[:10, 1] = -0.05
     actions = torch.randint(3, (200,), generator=generator)
@@ -58,5 +62,7 @@ def test_a_gymnasium_batch_shape_is_a_grid_of_independent_copies_each_playing_it
     assert len({tuple(row.tolist()) for row in first_observations}) == 6  # every copy seeded apart
     episodes = first_episodes(rollout.reshape(6, -1))
     ends = rollout["next", "done"].reshape(6, -1).int().argmax(-1)
-    assert [episode.length for episode in episodes] == (ends + 1).tolist()  # each copy's own first done, whatever the others do
+    assert [episode.length for episode in episodes] == (
+        ends + 1
+    ).tolist()  # each copy's own first done, whatever the others do
     assert len(set(ends.tolist())) > 1  # so copies that finished first waited for the last

@@ -1,4 +1,5 @@
 """Any discrete-action gymnasium task: every observation space read as one float vector, every unsupported one refused in one line."""
+
 from __future__ import annotations
 
 import gymnasium as gym
@@ -12,11 +13,13 @@ from torchrl.envs.utils import RandomPolicy
 from torchrl_mbe import make_env
 from torchrl_mbe.envs.observations import MAX_OBSERVATION_SIZE
 
+THREE_ACTIONS = spaces.Discrete(3)
+
 
 class SpacesEnv(gym.Env):
     """A task of any observation and action space: random observations, an episode of 20 steps."""
 
-    def __init__(self, observation_space: spaces.Space, action_space: spaces.Space = spaces.Discrete(3)) -> None:
+    def __init__(self, observation_space: spaces.Space, action_space: spaces.Space = THREE_ACTIONS) -> None:
         self.observation_space, self.action_space = observation_space, action_space
         self.steps = 0
 
@@ -36,17 +39,26 @@ SPACES = {
     "test/MultiDiscrete-v0": (spaces.MultiDiscrete([3, 4]), 7),
     "test/MultiBinary-v0": (spaces.MultiBinary(5), 5),
     "test/Image-v0": (spaces.Box(0, 255, (6, 6, 3), np.uint8), 108),
-    "test/Dict-v0": (spaces.Dict(position=spaces.Box(-1.0, 1.0, (2,)), room=spaces.Discrete(4), note=spaces.Text(8)), 6),
+    "test/Dict-v0": (
+        spaces.Dict(position=spaces.Box(-1.0, 1.0, (2,)), room=spaces.Discrete(4), note=spaces.Text(8)),
+        6,
+    ),
 }
 REFUSED = {
-    "test/Text-v0": (spaces.Text(8), spaces.Discrete(3), "observation; accepted: Box, Discrete"),
-    "test/Pixels-v0": (spaces.Box(0, 255, (64, 64, 3), np.uint8), spaces.Discrete(3), f"observation of 12288 numbers; at most {MAX_OBSERVATION_SIZE}"),
+    "test/Text-v0": (spaces.Text(8), THREE_ACTIONS, "observation; accepted: Box, Discrete"),
+    "test/Pixels-v0": (
+        spaces.Box(0, 255, (64, 64, 3), np.uint8),
+        THREE_ACTIONS,
+        f"observation of 12288 numbers; at most {MAX_OBSERVATION_SIZE}",
+    ),
     "test/MultiAction-v0": (spaces.Box(-1.0, 1.0, (2,)), spaces.MultiDiscrete([2, 2]), "MultiDiscrete"),
 }
 for env_id, (observation_space, *_) in SPACES.items():
     gym.register(env_id, entry_point=SpacesEnv, kwargs={"observation_space": observation_space})
 for env_id, (observation_space, action_space, _) in REFUSED.items():
-    gym.register(env_id, entry_point=SpacesEnv, kwargs={"observation_space": observation_space, "action_space": action_space})
+    gym.register(
+        env_id, entry_point=SpacesEnv, kwargs={"observation_space": observation_space, "action_space": action_space}
+    )
 
 
 @pytest.mark.parametrize(
@@ -61,8 +73,13 @@ for env_id, (observation_space, action_space, _) in REFUSED.items():
 )
 def test_every_observation_space_is_one_float_vector_the_same_in_one_env_and_in_a_batch(env_id, size):
     single, batch = make_env(env_id, seed=3), make_env(env_id, num_envs=2, seed=3)
-    assert single.observation_spec["observation"].shape == (size,) and batch.observation_spec["observation"].shape == (2, size)
-    assert torch.equal(batch.reset()["observation"][0], single.reset()["observation"])  # the first copy is seeded as the single env
+    assert single.observation_spec["observation"].shape == (size,) and batch.observation_spec["observation"].shape == (
+        2,
+        size,
+    )
+    assert torch.equal(
+        batch.reset()["observation"][0], single.reset()["observation"]
+    )  # the first copy is seeded as the single env
     rollout = single.rollout(30, RandomPolicy(single.action_spec))
     assert rollout["observation"].dtype == rollout["next", "observation"].dtype == torch.float32
 
@@ -90,7 +107,11 @@ def test_a_box_of_floats_is_read_as_torchrl_reads_it_so_mountaincar_steps_as_bef
 
 
 def _suite_ids(*entry_point_prefixes: str) -> list[str]:
-    return sorted(env_id for env_id, spec in gym.registry.items() if isinstance(spec.entry_point, str) and spec.entry_point.startswith(entry_point_prefixes))
+    return sorted(
+        env_id
+        for env_id, spec in gym.registry.items()
+        if isinstance(spec.entry_point, str) and spec.entry_point.startswith(entry_point_prefixes)
+    )
 
 
 @pytest.mark.parametrize("suite", ["gymnasium.envs.toy_text", "gymnasium.envs.classic_control", "minigrid"])
@@ -104,7 +125,11 @@ def test_every_id_of_gymnasiums_toy_text_and_classic_control_and_of_minigrid_ste
             refused[env_id] = str(error)
             continue
         rollout = env.rollout(20, RandomPolicy(env.action_spec))
-        assert rollout["next", "observation"].dtype == torch.float32 and rollout["next", "observation"].ndim == 2, env_id
+        assert rollout["next", "observation"].dtype == torch.float32 and rollout["next", "observation"].ndim == 2, (
+            env_id
+        )
     assert all("\n" not in message and env_id in message for env_id, message in refused.items())
     continuous = {"MountainCarContinuous-v0", "Pendulum-v1"}
-    assert set(refused) == (continuous if suite.endswith("classic_control") else {i for i in refused if "WFC" in i}), refused
+    assert set(refused) == (continuous if suite.endswith("classic_control") else {i for i in refused if "WFC" in i}), (
+        refused
+    )

@@ -1,4 +1,5 @@
 """What every torch-batched classic-control env shares with its gymnasium original: specs, time limit, seeding."""
+
 from __future__ import annotations
 
 import gymnasium as gym

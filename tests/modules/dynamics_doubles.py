@@ -1,4 +1,5 @@
 """Test doubles for dynamics modules: hand-built predictions the tests know exactly."""
+
 from __future__ import annotations
 
 import torch

@@ -1,4 +1,5 @@
 """The components on a user's own EnvBase: a Discrete observation (TorchRL's one-hot integers) and a Composite of two entries."""
+
 from __future__ import annotations
 
 import pytest
@@ -39,7 +40,15 @@ class Chain(EnvBase):
     def _step(self, tensordict: TensorDict) -> TensorDict:
         self.cell = min(max(self.cell + (1 if tensordict["action"].argmax() == 1 else -1), 0), CELLS - 1)
         done = torch.zeros(1, dtype=torch.bool)
-        return TensorDict({**self._observation(), "reward": torch.zeros(1), "done": done, "terminated": done.clone(), "truncated": done.clone()})
+        return TensorDict(
+            {
+                **self._observation(),
+                "reward": torch.zeros(1),
+                "done": done,
+                "terminated": done.clone(),
+                "truncated": done.clone(),
+            }
+        )
 
     def _set_seed(self, seed) -> None:
         torch.manual_seed(seed)
@@ -63,11 +72,21 @@ def test_a_discrete_observation_of_one_hot_integers_is_learned_and_planned_over_
     transitions = learn_from_random_walk(env, dynamics)
     with torch.no_grad():
         predicted = dynamics(transitions.exclude("next").clone())["predicted_observation"]
-    assert (predicted.argmax(-1) == transitions["next", "observation"].argmax(-1)).float().mean() > 0.95  # integer inputs and targets
-    for scorer in (novelty.RollingGaussianDensity, novelty.DiagonalGaussianDensity, novelty.GaussianKernelNovelty, novelty.KNearestNovelty, novelty.KernelDensityNovelty):
+    assert (
+        predicted.argmax(-1) == transitions["next", "observation"].argmax(-1)
+    ).float().mean() > 0.95  # integer inputs and targets
+    for scorer in (
+        novelty.RollingGaussianDensity,
+        novelty.DiagonalGaussianDensity,
+        novelty.GaussianKernelNovelty,
+        novelty.KNearestNovelty,
+        novelty.KernelDensityNovelty,
+    ):
         window = scorer(window=20)
         window.update(transitions["observation"][:20])  # integers, as the env gives them
-        planned = NoveltyPlanner(dynamics, window, env.action_spec)(TensorDict({"observation": transitions["observation"][:4]}, [4]))
+        planned = NoveltyPlanner(dynamics, window, env.action_spec)(
+            TensorDict({"observation": transitions["observation"][:4]}, [4])
+        )
         assert planned["action"].shape == (4, 2) and torch.isfinite(planned["novelty_scores"]).all(), scorer.__name__
 
 
@@ -79,4 +98,6 @@ def test_a_composite_observation_of_two_entries_is_read_once_torchrls_cat_tensor
     transitions = learn_from_random_walk(env, dynamics)
     with torch.no_grad():
         predicted = dynamics(transitions.exclude("next").clone())["predicted_observation"]
-    assert (predicted[:, :CELLS].argmax(-1) == transitions["next", "observation"][:, :CELLS].argmax(-1)).float().mean() > 0.95
+    assert (
+        predicted[:, :CELLS].argmax(-1) == transitions["next", "observation"][:, :CELLS].argmax(-1)
+    ).float().mean() > 0.95

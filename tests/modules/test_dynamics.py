@@ -64,11 +64,18 @@ def test_normalization_refits_from_a_replay_buffer_and_travels_with_state_dict()
     torch.testing.assert_close(dynamics.observation_norm.scale, data["observation"].std(0))
     restored = DynamicsModel(2, OneHot(3))
     restored.load_state_dict(dynamics.state_dict())
-    torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
+    torch.testing.assert_close(
+        restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"]
+    )
 
 
 def normalization(dynamics: DynamicsModel) -> list[torch.Tensor]:
-    return [dynamics.observation_norm.loc, dynamics.observation_norm.scale, dynamics.delta_norm.loc, dynamics.delta_norm.scale]
+    return [
+        dynamics.observation_norm.loc,
+        dynamics.observation_norm.scale,
+        dynamics.delta_norm.loc,
+        dynamics.delta_norm.scale,
+    ]
 
 
 def test_dynamics_loss_fits_a_fresh_model_on_the_first_batch_it_trains_on_and_the_flag_travels_with_state_dict():
@@ -177,12 +184,18 @@ def test_a_randomized_prior_stays_frozen_and_out_of_the_optimizer(num_members):
     for before, after in zip(prior, dynamics.prior.parameters()):
         torch.testing.assert_close(after, before)
     restored = DynamicsModel(6, Categorical(2), (16,), num_members=num_members, prior_scale=1.0)
-    restored.load_state_dict(dynamics.state_dict())  # the prior travels with a checkpoint (a resumed run predicts alike)
+    restored.load_state_dict(
+        dynamics.state_dict()
+    )  # the prior travels with a checkpoint (a resumed run predicts alike)
     with torch.no_grad():
-        torch.testing.assert_close(restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"])
+        torch.testing.assert_close(
+            restored(data.clone())["predicted_observation"], dynamics(data.clone())["predicted_observation"]
+        )
 
 
-@pytest.mark.parametrize(("prior_num_cells", "scale"), [(None, 10.0), ((32,), 25.0)], ids=["as-wide-as-the-model", "narrow"])
+@pytest.mark.parametrize(
+    ("prior_num_cells", "scale"), [(None, 10.0), ((32,), 25.0)], ids=["as-wide-as-the-model", "narrow"]
+)
 def test_a_randomized_prior_sends_untried_actions_off_the_visited_states(prior_num_cells, scale):
     """Trained on action 0 only, the plain model predicts a visited cell for action 1; with a prior, wide or narrow, it does not."""
     distances = {}
@@ -197,7 +210,9 @@ def test_a_randomized_prior_sends_untried_actions_off_the_visited_states(prior_n
             loss(tried)["loss_dynamics"].backward()
             optimizer.step()
         with torch.no_grad():
-            torch.testing.assert_close(dynamics(tried.clone())["predicted_observation"], tried["next", "observation"], atol=0.05, rtol=0)
+            torch.testing.assert_close(
+                dynamics(tried.clone())["predicted_observation"], tried["next", "observation"], atol=0.05, rtol=0
+            )
             distances[prior_scale] = distance_to_nearest_cell(dynamics(untried.clone())["predicted_observation"])
     assert distances[0.0].max() < 0.7  # an untried action looks like a move to a known cell (cells are 1.41 apart)
     assert distances[scale].min() > 1.0  # with the prior, it lands where no visited state is
@@ -214,7 +229,9 @@ def test_the_prior_has_its_own_hidden_layers_when_given(num_members):
     sizes = [parameter.shape[-2] for name, parameter in narrow.prior.named_parameters() if name.endswith("weight")]
     assert sizes == [8, 4, 6]  # two hidden layers of its own, then the observation
     default = DynamicsModel(6, Categorical(2), (64,), num_members=num_members, prior_scale=1.0)
-    assert [parameter.shape for parameter in default.prior.parameters()] == [parameter.shape for parameter in default.net.parameters()]
+    assert [parameter.shape for parameter in default.prior.parameters()] == [
+        parameter.shape for parameter in default.net.parameters()
+    ]
     with pytest.raises(ValueError, match="prior_num_cells must be positive"):
         DynamicsModel(6, Categorical(2), (64,), prior_scale=1.0, prior_num_cells=(0,))
 
@@ -237,7 +254,9 @@ def test_raw_units_keep_identity_statistics_and_learn_one_hot_transitions():
         torch.testing.assert_close(statistics.scale, torch.ones(6))
     torch.testing.assert_close(losses["loss_dynamics"].detach(), losses["mse_dynamics"])
     with torch.no_grad():
-        torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)
+        torch.testing.assert_close(
+            dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0
+        )
 
 
 def fit(dynamics: DynamicsModel, data: TensorDict, steps: int, lr: float) -> None:
@@ -256,9 +275,14 @@ def grid_transitions(size: int, pairs: int, seed: int = 0) -> TensorDict:
     cells = torch.randperm((size - 1) * size, generator=generator)[:pairs]
     action = torch.randint(2, (pairs,), generator=generator)
     row, column = cells // size, cells % size
-    next_cells = (row + 1) * size + (column + torch.randint(2, (pairs,), generator=generator) * 2 - 1).clamp(0, size - 1)
+    next_cells = (row + 1) * size + (column + torch.randint(2, (pairs,), generator=generator) * 2 - 1).clamp(
+        0, size - 1
+    )
     cells_one_hot = torch.eye(size * size)
-    return TensorDict({"observation": cells_one_hot[cells], "action": action, ("next", "observation"): cells_one_hot[next_cells]}, [pairs])
+    return TensorDict(
+        {"observation": cells_one_hot[cells], "action": action, ("next", "observation"): cells_one_hot[next_cells]},
+        [pairs],
+    )
 
 
 def test_a_categorical_model_learns_more_next_cells_than_a_delta_model_of_its_width_can_span():
@@ -270,7 +294,9 @@ def test_a_categorical_model_learns_more_next_cells_than_a_delta_model_of_its_wi
         dynamics = DynamicsModel(400, Categorical(2), (32,), normalize=False, output=output)
         fit(dynamics, data, steps=600, lr=3e-3)
         with torch.no_grad():
-            errors[output] = (dynamics(data.clone())["predicted_observation"] - data["next", "observation"]).norm(dim=-1)
+            errors[output] = (dynamics(data.clone())["predicted_observation"] - data["next", "observation"]).norm(
+                dim=-1
+            )
     assert errors["delta"].median() > 1.0  # cells are 1.41 apart: 33 directions hold little of 200 targets
     assert errors["categorical"].max() < 0.1
 
@@ -279,12 +305,22 @@ def test_a_categorical_model_learns_more_next_cells_than_a_delta_model_of_its_wi
 @pytest.mark.parametrize("num_members", [None, 3], ids=["single", "population"])
 def test_a_categorical_model_trains_on_the_cross_entropy_and_its_offset_cancelling_the_prior(num_members, prior_scale):
     torch.manual_seed(0)
-    dynamics = DynamicsModel(9, Categorical(2), (16,), num_members=num_members, prior_scale=prior_scale, normalize=False, output="categorical")
+    dynamics = DynamicsModel(
+        9,
+        Categorical(2),
+        (16,),
+        num_members=num_members,
+        prior_scale=prior_scale,
+        normalize=False,
+        output="categorical",
+    )
     batch = (4,) if num_members is None else (4, num_members)
     cells = torch.eye(9)[torch.randint(9, batch)]
     next_cells = torch.eye(9)[torch.randint(9, batch)]
     next_cells[0] = 0  # a terminal transition (DeepSea's next observation after its last row): the class of zeros
-    data = TensorDict({"observation": cells, "action": torch.randint(2, batch), ("next", "observation"): next_cells}, batch)
+    data = TensorDict(
+        {"observation": cells, "action": torch.randint(2, batch), ("next", "observation"): next_cells}, batch
+    )
     logits, offset = dynamics.categorical_parts(cells, data["action"])
     probabilities = logits.softmax(-1)
     assert probabilities.shape[-1] == 10
@@ -308,10 +344,14 @@ def test_a_categorical_model_predicts_zeros_after_the_last_row():
     data = chain_transitions(6, action=0)
     data["next", "observation"][-1] = 0
     torch.manual_seed(0)
-    dynamics = DynamicsModel(6, Categorical(2), (16,), prior_scale=1.0, prior_num_cells=(4,), normalize=False, output="categorical")
+    dynamics = DynamicsModel(
+        6, Categorical(2), (16,), prior_scale=1.0, prior_num_cells=(4,), normalize=False, output="categorical"
+    )
     fit(dynamics, data, steps=300, lr=1e-2)
     with torch.no_grad():
-        torch.testing.assert_close(dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0)
+        torch.testing.assert_close(
+            dynamics(data.clone())["predicted_observation"], data["next", "observation"], atol=0.05, rtol=0
+        )
 
 
 def test_a_categorical_model_with_a_prior_sends_untried_actions_off_the_visited_cells():
@@ -322,11 +362,23 @@ def test_a_categorical_model_with_a_prior_sends_untried_actions_off_the_visited_
     distances = {}
     for prior_scale in (0.0, 25.0):
         torch.manual_seed(0)
-        dynamics = DynamicsModel(400, Categorical(2), (64,), prior_scale=prior_scale, prior_num_cells=(8,), normalize=False, output="categorical")
+        dynamics = DynamicsModel(
+            400,
+            Categorical(2),
+            (64,),
+            prior_scale=prior_scale,
+            prior_num_cells=(8,),
+            normalize=False,
+            output="categorical",
+        )
         fit(dynamics, tried, steps=600, lr=3e-3)
         with torch.no_grad():
-            assert (dynamics(tried.clone())["predicted_observation"] - tried["next", "observation"]).norm(dim=-1).max() < 0.1
-            distances[prior_scale] = torch.cdist(dynamics(untried.clone())["predicted_observation"], visited).min(-1).values
+            assert (dynamics(tried.clone())["predicted_observation"] - tried["next", "observation"]).norm(
+                dim=-1
+            ).max() < 0.1
+            distances[prior_scale] = (
+                torch.cdist(dynamics(untried.clone())["predicted_observation"], visited).min(-1).values
+            )
     assert distances[0.0].max() < 0.1  # the tried action's next cell: an untried action looks familiar
     assert distances[25.0].min() > 1.0  # cells are 1.41 apart
 

@@ -155,7 +155,9 @@ def test_the_components_take_the_composite_spec_egreedy_takes_and_read_the_sizes
     policy = ModelBasedExplorationPolicy(actor, planner)
     rollout = env.rollout(10, policy)
     assert dynamics.observation_size == 2 and planner.num_actions == 3
-    assert torch.equal(rollout["action"].sum(-1), torch.ones(10, dtype=rollout["action"].dtype))  # one-hot, as the env's
+    assert torch.equal(
+        rollout["action"].sum(-1), torch.ones(10, dtype=rollout["action"].dtype)
+    )  # one-hot, as the env's
     assert planner.novelty.num_stored == 10
     with pytest.raises(ValueError, match="entry 'observation'.*env.observation_spec") as error:
         DynamicsModel(actor.spec, actor.spec)

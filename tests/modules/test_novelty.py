@@ -184,17 +184,24 @@ LOW_RANK_WINDOWS = {  # (steps, batch, features) states, window 50
 def test_the_low_rank_fit_gives_the_density_of_the_dense_eigh_fit(make_window):
     visits = make_window()
     num_features = visits.shape[-1]
-    low_rank, dense = RollingGaussianDensity(window=50, batch_shape=(3,)), DenseGaussianDensity(window=50, batch_shape=(3,))
+    low_rank, dense = (
+        RollingGaussianDensity(window=50, batch_shape=(3,)),
+        DenseGaussianDensity(window=50, batch_shape=(3,)),
+    )
     for density in (low_rank, dense):
         density.update(visits)
     assert "gram_eigenvectors" in low_rank.state_dict() and "whitening" not in low_rank.state_dict()
     unseen_one_hot = torch.eye(num_features)[torch.randint(0, num_features, (5, 3))]
     queries = torch.cat([visits[-5:], unseen_one_hot, torch.randn(5, 3, num_features)]).double()
     torch.testing.assert_close(low_rank.log_prob(queries), dense.log_prob(queries), rtol=1e-8, atol=1e-6)
-    torch.testing.assert_close(low_rank.covariance_matrix, regularized_covariance(low_rank.window_states()), rtol=1e-5, atol=1e-10)
+    torch.testing.assert_close(
+        low_rank.covariance_matrix, regularized_covariance(low_rank.window_states()), rtol=1e-5, atol=1e-10
+    )
 
 
-def regularized_covariance(window: torch.Tensor, min_variance: float = 1e-8, min_eigenvalue: float = 1e-6) -> torch.Tensor:
+def regularized_covariance(
+    window: torch.Tensor, min_variance: float = 1e-8, min_eigenvalue: float = 1e-6
+) -> torch.Tensor:
     """The class docstring's covariance, from its definition: variances floored, correlation eigenvalues floored."""
     window = window.double()
     centered = window - window.mean(-2, keepdim=True)
@@ -226,7 +233,13 @@ def test_a_low_rank_fit_travels_in_the_state_dict_to_a_fresh_density():
     assert not fresh.fit_stale and torch.equal(fresh.score(queries), scores)
 
 
-ALL_SCORERS = [RollingGaussianDensity, GaussianKernelNovelty, DiagonalGaussianDensity, KNearestNovelty, KernelDensityNovelty]
+ALL_SCORERS = [
+    RollingGaussianDensity,
+    GaussianKernelNovelty,
+    DiagonalGaussianDensity,
+    KNearestNovelty,
+    KernelDensityNovelty,
+]
 
 
 @pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
@@ -298,7 +311,9 @@ def test_diagonal_gaussian_is_the_sum_of_per_dimension_normal_log_densities():
     density = DiagonalGaussianDensity(window=40, batch_shape=(2,))
     density.update(window)
     states = torch.randn(5, 2, 3)
-    expected = -torch.distributions.Normal(window.double().mean(0), window.double().std(0)).log_prob(states.double()).sum(-1)
+    expected = (
+        -torch.distributions.Normal(window.double().mean(0), window.double().std(0)).log_prob(states.double()).sum(-1)
+    )
     assert torch.allclose(density.score(states).double(), expected, atol=1e-4)
 
 
@@ -320,7 +335,9 @@ def test_diagonal_gaussian_without_a_window_fits_every_state_and_stores_none():
         density.update(chunk)
     assert density.num_stored == 500 and density.states is None
     states = torch.randn(5, 3)
-    expected = -torch.distributions.Normal(visited.double().mean(0), visited.double().std(0)).log_prob(states.double()).sum(-1)
+    expected = (
+        -torch.distributions.Normal(visited.double().mean(0), visited.double().std(0)).log_prob(states.double()).sum(-1)
+    )
     torch.testing.assert_close(density.score(states).double(), expected, rtol=1e-6, atol=1e-3)
     fresh = DiagonalGaussianDensity(window=None)
     fresh.load_state_dict(density.state_dict())
@@ -375,7 +392,11 @@ def test_a_diagonal_gaussian_saved_with_a_whitening_matrix_loads_and_scores_its_
     density = DiagonalGaussianDensity(window=20)
     density.update(torch.randn(35, 3))
     states = torch.randn(4, 3)
-    old_layout = {key: value for key, value in density.state_dict().items() if key not in ("state_sum", "state_square_sum", "inverse_std")}
+    old_layout = {
+        key: value
+        for key, value in density.state_dict().items()
+        if key not in ("state_sum", "state_square_sum", "inverse_std")
+    }
     old_layout["whitening"] = torch.eye(3, dtype=torch.float64)  # what an earlier version saved beside the window
     fresh = DiagonalGaussianDensity(3, window=20)
     fresh.load_state_dict(old_layout)

@@ -1,4 +1,5 @@
 """The README's pipeline: the components composed in a plain TorchRL loop, run as written."""
+
 from __future__ import annotations
 
 import re

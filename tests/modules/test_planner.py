@@ -85,7 +85,9 @@ class FirstActionDynamics(ShiftDynamics):
 
 
 def test_long_horizons_use_a_bounded_random_search_covering_every_first_action():
-    planner = NoveltyPlanner(FirstActionDynamics(SHIFTS), fitted(RollingGaussianDensity), OneHot(3), horizon=10, max_sequences=64)
+    planner = NoveltyPlanner(
+        FirstActionDynamics(SHIFTS), fitted(RollingGaussianDensity), OneHot(3), horizon=10, max_sequences=64
+    )
     sequences = planner._action_sequences()
     assert sequences.shape == (63, 10)
     assert torch.equal(torch.bincount(sequences[:, 0]), torch.tensor([21, 21, 21]))

@@ -1,4 +1,5 @@
 """Populations: members are independent, a member's update is a single network's, the buffer samples per member."""
+
 from __future__ import annotations
 
 import copy
@@ -8,9 +9,9 @@ import pytest
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import OneHot
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.envs.transforms import RNDTransform
 from torchrl.envs.transforms.rnd import RunningMeanStd
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, RNDLoss
 
@@ -146,7 +147,9 @@ def test_a_members_update_is_the_update_of_its_own_single_network():
         for member, single in enumerate(singles):
             single_out = single.update(batch[:, member].clone())
             torch.testing.assert_close(population_out["member_loss"][member], single_out["loss"].detach())
-            torch.testing.assert_close(population_out["grad_norm"][member], single_out["grad_norm"], rtol=1e-4, atol=1e-7)
+            torch.testing.assert_close(
+                population_out["grad_norm"][member], single_out["grad_norm"], rtol=1e-4, atol=1e-7
+            )
     for member, single in enumerate(singles):
         expected = single.loss.value_network_params["module", "0", "module"]
         for key, value in member_parameters(population).items(include_nested=True, leaves_only=True):
@@ -172,7 +175,9 @@ def test_each_member_is_glorot_initialized_on_its_own_slice():
     assert not torch.equal(weight[0], weight[1])
 
 
-def noisy_values(actor: QValueActor, states: torch.Tensor, mode: ExplorationType = ExplorationType.RANDOM) -> torch.Tensor:
+def noisy_values(
+    actor: QValueActor, states: torch.Tensor, mode: ExplorationType = ExplorationType.RANDOM
+) -> torch.Tensor:
     """The action values of ``states`` (``[B, M, F]``): with the actor's current noise sample, or its noise-free mean (``DETERMINISTIC``)."""
     with set_exploration_type(mode):
         return actor(TensorDict(observation=states, batch_size=states.shape[:-1]))["action_value"]
@@ -189,13 +194,17 @@ def test_a_noisy_populations_reset_draws_new_noise_for_every_member_on_its_own()
     assert all(not torch.equal(noise[0], noise[member]) for member in (1, 2, 3))  # no member shares another's draw
     mean = noisy_values(actor, states, ExplorationType.DETERMINISTIC)
     actor.apply(reset_members_noise)
-    assert torch.equal(noisy_values(actor, states, ExplorationType.DETERMINISTIC), mean)  # the noise-free mean is untouched
+    assert torch.equal(
+        noisy_values(actor, states, ExplorationType.DETERMINISTIC), mean
+    )  # the noise-free mean is untouched
 
 
 def test_a_noisy_members_state_loads_into_a_single_noisy_network_that_acts_as_the_member():
     actor = make_population_q_actor(OBSERVATION_SIZE, SPEC, NUM_CELLS, 3, noise_std=0.5)
     actor.apply(reset_members_noise)
-    single = QValueActor(make_per_action_mlp(OBSERVATION_SIZE, SPEC, NUM_CELLS, noise_std=0.5), spec=SPEC, in_keys=["observation"])
+    single = QValueActor(
+        make_per_action_mlp(OBSERVATION_SIZE, SPEC, NUM_CELLS, noise_std=0.5), spec=SPEC, in_keys=["observation"]
+    )
     single.load_state_dict(member_state_dict(actor.state_dict(), 1))  # strict: exactly a single NoisyNet's keys
     states = torch.randn(8, 3, OBSERVATION_SIZE)
     torch.testing.assert_close(noisy_values(single, states[:, 1]), noisy_values(actor, states)[:, 1])
@@ -222,7 +231,10 @@ def gradients(num_members: int) -> list[torch.Tensor]:
 
 def _rnd_networks(num_members: int = 3) -> tuple[torch.nn.Module, torch.nn.Module]:
     """An RND target and predictor of ``num_members`` members (tanh, torch's default initialization: RNDExplorer's)."""
-    return tuple(make_members_mlp(OBSERVATION_SIZE, 8, [16], num_members, activation_class=torch.nn.Tanh, glorot=False) for _ in range(2))
+    return tuple(
+        make_members_mlp(OBSERVATION_SIZE, 8, [16], num_members, activation_class=torch.nn.Tanh, glorot=False)
+        for _ in range(2)
+    )
 
 
 def _member_mlp(network: torch.nn.Module, member: int) -> MLP:
@@ -243,9 +255,13 @@ def test_an_rnd_members_rewards_and_statistics_are_a_single_rnd_transforms_on_it
     population = PopulationRNDTransform(target, predictor)
     singles = [RNDTransform(_member_mlp(target, member), _member_mlp(predictor, member)) for member in range(3)]
     for observation in _members_observations(steps=6, num_envs=4, num_members=3):
-        rewards = population._step(TensorDict(), TensorDict(observation=observation, batch_size=[4, 3]))["intrinsic_reward"]
+        rewards = population._step(TensorDict(), TensorDict(observation=observation, batch_size=[4, 3]))[
+            "intrinsic_reward"
+        ]
         for member, single in enumerate(singles):
-            alone = single._step(TensorDict(), TensorDict(observation=observation[:, member], batch_size=[4]))["intrinsic_reward"]
+            alone = single._step(TensorDict(), TensorDict(observation=observation[:, member], batch_size=[4]))[
+                "intrinsic_reward"
+            ]
             torch.testing.assert_close(rewards[:, member], alone)
     for member, single in enumerate(singles):
         torch.testing.assert_close(population.obs_rms.mean[member], single.obs_rms.mean)
@@ -253,7 +269,9 @@ def test_an_rnd_members_rewards_and_statistics_are_a_single_rnd_transforms_on_it
 
 
 def _rnd_batch(observation: torch.Tensor) -> TensorDict:
-    return TensorDict(next=TensorDict(observation=observation, batch_size=observation.shape[:2]), batch_size=observation.shape[:2])
+    return TensorDict(
+        next=TensorDict(observation=observation, batch_size=observation.shape[:2]), batch_size=observation.shape[:2]
+    )
 
 
 def test_an_rnd_members_predictor_gradient_is_its_single_rnd_loss_gradient():
@@ -262,13 +280,17 @@ def test_an_rnd_members_predictor_gradient_is_its_single_rnd_loss_gradient():
     observation = _members_observations(steps=1, num_envs=64, num_members=3)[0]  # [B, M, F]
     statistics = RunningMeanStd(shape=(3, OBSERVATION_SIZE))
     statistics.update(observation)
-    PopulationRNDLoss(predictor, target, obs_rms=statistics, update_fraction=1.0)(_rnd_batch(observation))["loss_predictor"].backward()
+    PopulationRNDLoss(predictor, target, obs_rms=statistics, update_fraction=1.0)(_rnd_batch(observation))[
+        "loss_predictor"
+    ].backward()
     for member in range(3):
         single_predictor = _member_mlp(predictor, member)
         single_statistics = RunningMeanStd(shape=(OBSERVATION_SIZE,))
         single_statistics.update(observation[:, member])
         single = RNDLoss(single_predictor, _member_mlp(target, member), obs_rms=single_statistics, update_fraction=1.0)
-        single(TensorDict(next=TensorDict(observation=observation[:, member], batch_size=[64]), batch_size=[64]))["loss_predictor"].backward()
+        single(TensorDict(next=TensorDict(observation=observation[:, member], batch_size=[64]), batch_size=[64]))[
+            "loss_predictor"
+        ].backward()
         torch.testing.assert_close(predictor.params["0", "weight"].grad[member], single_predictor[0].weight.grad)
 
 
@@ -286,7 +308,9 @@ def test_each_rnd_member_averages_over_its_own_kept_samples():
     per_sample = (predictor(observation) - target(observation)).pow(2).mean(-1)  # [B, M]
     torch.manual_seed(1)
     kept = torch.rand(per_sample.shape) < 0.25
-    torch.testing.assert_close(member_losses[0], (per_sample * kept).sum(0) / kept.sum(0))  # not diluted by the other members' samples
+    torch.testing.assert_close(
+        member_losses[0], (per_sample * kept).sum(0) / kept.sum(0)
+    )  # not diluted by the other members' samples
     torch.testing.assert_close(member_losses[0][:CHANGED], member_losses[1][:CHANGED])
     assert not torch.equal(member_losses[0][CHANGED], member_losses[1][CHANGED])
 

@@ -37,13 +37,21 @@ def write_run(
     lengths = np.where(reached, -returns, 200).astype(int)
     frames = np.cumsum(lengths)
     summary = {
-        "env": env, "method": method, "seed": seed, "frames": int(frames[-1]), "episodes": len(returns),
-        "wall_time_s": 12.5, "final_eval_return": final_eval, "solved_threshold": threshold, **(experiment or {}),
+        "env": env,
+        "method": method,
+        "seed": seed,
+        "frames": int(frames[-1]),
+        "episodes": len(returns),
+        "wall_time_s": 12.5,
+        "final_eval_return": final_eval,
+        "solved_threshold": threshold,
+        **(experiment or {}),
     }
     (run_dir / "summary.json").write_text(json.dumps(summary))
     rows = ["episode,frames,return,length,reached_goal,eps,wall_time_s"]
     rows += [
-        f"{i + 1},{frames[i]},{returns[i]},{lengths[i]},{int(reached[i])},0.5,{0.1 * i:.1f}" for i in range(len(returns))
+        f"{i + 1},{frames[i]},{returns[i]},{lengths[i]},{int(reached[i])},0.5,{0.1 * i:.1f}"
+        for i in range(len(returns))
     ]
     (run_dir / "episodes.csv").write_text("\n".join(rows) + "\n")
     if evaluations is not None:
@@ -70,6 +78,7 @@ def runs_dir(tmp_path: Path) -> Path:
     exploration run; nested like Hydra multirun sweeps."""
     root = tmp_path / "runs"
     sweep = root / "multirun" / "2025-01-01" / "12-00-00"
+
     def failures_then_goal(first_success: int) -> np.ndarray:  # 150 episodes
         return np.r_[np.full(first_success - 1, -200.0), np.full(151 - first_success, -100.0)]
 
@@ -92,7 +101,13 @@ def runs_dir(tmp_path: Path) -> Path:
     lunar_states = np.random.default_rng(0).normal(0.0, 0.5, size=(500, 8))
     lunar_states[:, 6:] = lunar_states[:, 6:] > 0
     write_run(
-        root / "lunar", "explore:random", 0, np.full(5, -150.0), env="LunarLander-v3", threshold=200.0, states=lunar_states
+        root / "lunar",
+        "explore:random",
+        0,
+        np.full(5, -150.0),
+        env="LunarLander-v3",
+        threshold=200.0,
+        states=lunar_states,
     )
     return root
 
@@ -124,15 +139,20 @@ class TestReport:
         main([str(runs_dir)])
         out = runs_dir / "report"
         names = {
-            "learning_curves_MountainCar-v0.png", "greedy_evaluations_MountainCar-v0.png",
-            "coverage_MountainCar-v0.png", "coverage_LunarLander-v3.png", "results.md",
+            "learning_curves_MountainCar-v0.png",
+            "greedy_evaluations_MountainCar-v0.png",
+            "coverage_MountainCar-v0.png",
+            "coverage_LunarLander-v3.png",
+            "results.md",
         }
         assert {p.name for p in out.iterdir()} == names
         assert sorted(capsys.readouterr().out.split()) == sorted(str(out / name) for name in names)
         for name in names - {"results.md"}:
             assert_png(out / name)
         # two panels side by side (MountainCar) vs. one (LunarLander)
-        assert imread(out / "coverage_MountainCar-v0.png").shape[1] > imread(out / "coverage_LunarLander-v3.png").shape[1]
+        assert (
+            imread(out / "coverage_MountainCar-v0.png").shape[1] > imread(out / "coverage_LunarLander-v3.png").shape[1]
+        )
 
     def test_learning_table_numbers(self, runs_dir, tmp_path):
         main([str(runs_dir), "--out", str(tmp_path / "out")])
@@ -187,7 +207,13 @@ class TestReport:
         states = np.random.default_rng(0).uniform(-3.0, 3.0, size=(400, 3))
         write_run(tmp_path / "runs" / "a", "dqn+gaussian", 0, np.full(120, 1.0), env="Custom-v0", threshold=None)
         write_run(
-            tmp_path / "runs" / "b", "explore:random", 0, np.full(4, 1.0), env="Custom-v0", threshold=None, states=states
+            tmp_path / "runs" / "b",
+            "explore:random",
+            0,
+            np.full(4, 1.0),
+            env="Custom-v0",
+            threshold=None,
+            states=states,
         )
         main([str(tmp_path / "runs")])
         results = (tmp_path / "runs" / "report" / "results.md").read_text()
@@ -207,7 +233,9 @@ class TestGrouping:
     def test_runs_of_different_configs_never_merge_and_labels_count_distinct_seeds(self, tmp_path):
         returns = np.full(5, -200.0)
         for seed in (0, 1):
-            write_run(tmp_path / f"a{seed}", "dqn+gaussian", seed, returns, experiment={"tag": "default", "config_id": "aaaa"})
+            write_run(
+                tmp_path / f"a{seed}", "dqn+gaussian", seed, returns, experiment={"tag": "default", "config_id": "aaaa"}
+            )
         write_run(tmp_path / "b0", "dqn+gaussian", 0, returns, experiment={"tag": "sweep", "config_id": "bbbb"})
         groups = group_runs(load_runs(tmp_path))
         assert {label: [r.seed for r in runs] for label, runs in groups.items()} == {
@@ -217,8 +245,15 @@ class TestGrouping:
 
     def test_one_method_with_a_config_per_env_reports_every_env(self, tmp_path):
         for env, config_id in (("MountainCar-v0", "aaaa"), ("CartPole-v1", "bbbb")):
-            write_run(tmp_path / env, "dqn+gaussian", 0, np.full(5, -200.0), env=env, evaluations=[-200.0],
-                      experiment={"tag": "default", "config_id": config_id})
+            write_run(
+                tmp_path / env,
+                "dqn+gaussian",
+                0,
+                np.full(5, -200.0),
+                env=env,
+                evaluations=[-200.0],
+                experiment={"tag": "default", "config_id": config_id},
+            )
         main([str(tmp_path), "--out", str(tmp_path / "report")])
         results = (tmp_path / "report" / "results.md").read_text()
         for env in ("MountainCar-v0", "CartPole-v1"):
@@ -228,17 +263,26 @@ class TestGrouping:
         mean, low, high = mean_curve([np.array([1.0, 2.0, 3.0]), np.array([5.0])])
         assert mean.tolist() == [3.0, 2.0, 3.0] and low.tolist() == [1.0, 2.0, 3.0] and high.tolist() == [5.0, 2.0, 3.0]
 
-
     def test_greedy_table_counts_solved_seeds_and_time_to_solved(self, tmp_path):
         returns = np.full(5, -150.0)
         outcomes = [(-105.0, True, 30000, 60.0), (-120.0, False, None, None)]
         for seed, (final, solved, frames, seconds) in enumerate(outcomes):
-            write_run(tmp_path / f"s{seed}", "dqn+gaussian", seed, returns, final_eval=final, experiment={
-                "solved": solved, "best_eval_return": -104.0, "solved_at_frames": frames, "solved_at_wall_time_s": seconds})
+            write_run(
+                tmp_path / f"s{seed}",
+                "dqn+gaussian",
+                seed,
+                returns,
+                final_eval=final,
+                experiment={
+                    "solved": solved,
+                    "best_eval_return": -104.0,
+                    "solved_at_frames": frames,
+                    "solved_at_wall_time_s": seconds,
+                },
+            )
         main([str(tmp_path), "--out", str(tmp_path / "report")])
         row = table_row((tmp_path / "report" / "results.md").read_text(), "### Greedy evaluations", "dqn+gaussian")
         assert row[2:6] == ["1/2", "-112.5 [-105.0, -120.0]", "-104.0 [-104.0, -104.0]", "30000 [30000, –]"]
-
 
     def test_summary_gives_medians_over_the_seeds_that_solved_and_a_frames_to_solved_figure(self, tmp_path):
         returns = np.r_[np.full(3, -200.0), np.full(3, -100.0)]  # first success: episode 4
@@ -246,9 +290,20 @@ class TestGrouping:
         cells = [[(0, 0), (1, 1)], [(0, 0), (1, 1), (2, 2), (3, 3)], None]  # 6 and 12 visited states, none
         for seed, (solved, frames, seconds, fps) in enumerate(outcomes):
             states = None if cells[seed] is None else mountaincar_cells(cells[seed])
-            write_run(tmp_path / f"s{seed}", "dqn+knn", seed, returns, final_eval=-100.0 - 10 * seed, states=states,
-                      experiment={"solved": solved, "solved_at_frames": frames, "solved_at_wall_time_s": seconds,
-                                  "frames_per_s": fps})
+            write_run(
+                tmp_path / f"s{seed}",
+                "dqn+knn",
+                seed,
+                returns,
+                final_eval=-100.0 - 10 * seed,
+                states=states,
+                experiment={
+                    "solved": solved,
+                    "solved_at_frames": frames,
+                    "solved_at_wall_time_s": seconds,
+                    "frames_per_s": fps,
+                },
+            )
         main([str(tmp_path), "--out", str(tmp_path / "report")])
         markdown = (tmp_path / "report" / "results.md").read_text()
         assert "coverage of the first 6 frames" in markdown.split("### Summary", 1)[1].split("\n\n")[1]
@@ -259,17 +314,26 @@ class TestGrouping:
     def test_coverage_figure_wraps_many_methods_into_rows(self, tmp_path):
         for count in (4, 5):
             for index in range(count):
-                write_run(tmp_path / f"m{count}" / str(index), f"dqn+m{index}", 0, np.full(4, -200.0),
-                          states=mountaincar_cells([(index, index)]))
+                write_run(
+                    tmp_path / f"m{count}" / str(index),
+                    f"dqn+m{index}",
+                    0,
+                    np.full(4, -200.0),
+                    states=mountaincar_cells([(index, index)]),
+                )
             main([str(tmp_path / f"m{count}"), "--out", str(tmp_path / f"report{count}")])
         one_row = assert_png(tmp_path / "report4" / "coverage_MountainCar-v0.png")
         two_rows = assert_png(tmp_path / "report5" / "coverage_MountainCar-v0.png")
         assert two_rows.shape[1] == one_row.shape[1] and two_rows.shape[0] > 1.8 * one_row.shape[0]
 
     def test_coverage_colour_bar_ends_at_the_last_finished_episode(self, tmp_path):
-        run_dir = write_run(tmp_path / "r", "explore:gaussian", 0, np.full(4, -200.0), states=mountaincar_cells([(1, 1)] * 5))
+        run_dir = write_run(
+            tmp_path / "r", "explore:gaussian", 0, np.full(4, -200.0), states=mountaincar_cells([(1, 1)] * 5)
+        )
         episodes = np.load(run_dir / "visited_episodes.npy")
-        np.save(run_dir / "visited_episodes.npy", np.append(episodes[:-1], 5))  # the last state: an unfinished 5th episode
+        np.save(
+            run_dir / "visited_episodes.npy", np.append(episodes[:-1], 5)
+        )  # the last state: an unfinished 5th episode
         assert last_finished_episode(load_runs(tmp_path)) == 4
 
 
@@ -367,7 +431,10 @@ class TestErrors:
 
     def test_cli_prints_one_line_without_traceback(self, tmp_path):
         result = subprocess.run(
-            [sys.executable, "-m", "torchrl_mbe.report", str(tmp_path / "nope")], capture_output=True, text=True, timeout=120
+            [sys.executable, "-m", "torchrl_mbe.report", str(tmp_path / "nope")],
+            capture_output=True,
+            text=True,
+            timeout=120,
         )
         assert result.returncode == 1
         expected = f"torchrl-mbe-report: error: runs directory {tmp_path / 'nope'} does not exist."

@@ -4,12 +4,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from test_report import assert_png, table_row, write_run
+
 from torchrl_mbe.report import load_runs, main, write_report
 
+
 def write_deepsea_run(
-    run_dir: Path, method: str, size: int, seed: int, *, solved_after: int | None, first_treasure: int | None,
+    run_dir: Path,
+    method: str,
+    size: int,
+    seed: int,
+    *,
+    solved_after: int | None,
+    first_treasure: int | None,
     experiment: dict | None = None,
 ) -> Path:
     """A 50-episode DeepSea-``size`` run, solved once ``solved_after`` episodes had finished, that
@@ -20,7 +27,12 @@ def write_deepsea_run(
     # write_run ends episode i at 200 * i frames: solved between the ends of episodes solved_after and solved_after + 1
     solved_at = None if solved_after is None else 200 * solved_after + 1
     write_run(
-        run_dir, method, seed, returns, env=f"DeepSea-{size}", threshold=0.5,
+        run_dir,
+        method,
+        seed,
+        returns,
+        env=f"DeepSea-{size}",
+        threshold=0.5,
         experiment={"solved": solved_after is not None, "solved_at_frames": solved_at, **(experiment or {})},
     )
     episodes = run_dir / "episodes.csv"  # write_run flags the goal on MountainCar only: flag the treasure here
@@ -47,7 +59,12 @@ def scaling_dir(tmp_path: Path) -> Path:
     for (method, size), seeds in outcomes.items():
         for seed, (solved_after, first_treasure) in enumerate(seeds):
             write_deepsea_run(
-                root / method / str(size) / str(seed), method, size, seed, solved_after=solved_after, first_treasure=first_treasure
+                root / method / str(size) / str(seed),
+                method,
+                size,
+                seed,
+                solved_after=solved_after,
+                first_treasure=first_treasure,
             )
     return root
 
@@ -63,15 +80,25 @@ def test_scaling_tables_and_figure(scaling_dir, tmp_path):
     results = (tmp_path / "out" / "results.md").read_text()
     scaling = results.split("## DeepSea: scaling with size N\n", 1)[1]
     assert "| method | N = 10 | N = 20 | N = 30 |" in scaling
-    assert table_row(scaling, "### Episodes to solved", "dqn+gaussian")[1:] == ["2/2, 15 [10, 20]", "2/2, 35 [30, 40]", "1/2, 45 [45, 45]"]
+    assert table_row(scaling, "### Episodes to solved", "dqn+gaussian")[1:] == [
+        "2/2, 15 [10, 20]",
+        "2/2, 35 [30, 40]",
+        "1/2, 45 [45, 45]",
+    ]
     assert table_row(scaling, "### Episodes to solved", "dqn+egreedy")[1:] == ["1/2, 25 [25, 25]", "0/2", "0/2"]
     first_treasure = "### Episodes to the first treasure"
-    assert table_row(scaling, first_treasure, "dqn+gaussian")[1:] == ["2/2, 5 [4, 6]", "2/2, 16 [12, 20]", "2/2, 36 [30, 41]"]
+    assert table_row(scaling, first_treasure, "dqn+gaussian")[1:] == [
+        "2/2, 5 [4, 6]",
+        "2/2, 16 [12, 20]",
+        "2/2, 36 [30, 41]",
+    ]
     assert table_row(scaling, first_treasure, "dqn+egreedy")[1:] == ["1/2, 9 [9, 9]", "0/2", "0/2"]
     assert "![episodes to solved against N](scaling_DeepSea.png)" in scaling
     assert_png(tmp_path / "out" / "scaling_DeepSea.png")
     for size in (10, 20, 30):  # the per-size sections stay
-        assert f"## DeepSea-{size}\n" in results and (tmp_path / "out" / f"learning_curves_DeepSea-{size}.png").is_file()
+        assert (
+            f"## DeepSea-{size}\n" in results and (tmp_path / "out" / f"learning_curves_DeepSea-{size}.png").is_file()
+        )
 
 
 def test_size_not_run_by_a_method_is_a_dash(scaling_dir, tmp_path):
@@ -96,12 +123,22 @@ def test_growth_is_the_loglog_slope_over_the_sizes_half_the_seeds_solved(tmp_pat
     for size, seeds in outcomes.items():
         for seed, solved_after in enumerate(seeds):
             write_deepsea_run(
-                tmp_path / "runs" / str(size) / str(seed), "dqn+diagonal", size, seed, solved_after=solved_after, first_treasure=size // 5
+                tmp_path / "runs" / str(size) / str(seed),
+                "dqn+diagonal",
+                size,
+                seed,
+                solved_after=solved_after,
+                first_treasure=size // 5,
             )
     write_deepsea_run(tmp_path / "runs" / "egreedy", "dqn+egreedy", 10, 0, solved_after=25, first_treasure=9)
     main([str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
     results = (tmp_path / "out" / "results.md").read_text()
-    assert table_row(results, "### Growth with N", "dqn+diagonal")[1:] == ["2.00", "10, 20, 30", "1.00", "10, 20, 30, 40"]
+    assert table_row(results, "### Growth with N", "dqn+diagonal")[1:] == [
+        "2.00",
+        "10, 20, 30",
+        "1.00",
+        "10, 20, 30, 40",
+    ]
     assert table_row(results, "### Growth with N", "dqn+egreedy")[1:] == ["–", "–", "–", "–"]
 
 
@@ -119,10 +156,21 @@ def test_a_method_run_with_two_presets_draws_one_series_per_preset(tmp_path):
     for tag, episodes in (("deepsea_learned", {10: 20, 20: 40}), ("deepsea_categorical", {10: 10, 20: 15})):
         for size, solved_after in episodes.items():
             write_deepsea_run(
-                tmp_path / "runs" / tag / str(size), "dqn+diagonal", size, 0, solved_after=solved_after, first_treasure=1,
+                tmp_path / "runs" / tag / str(size),
+                "dqn+diagonal",
+                size,
+                0,
+                solved_after=solved_after,
+                first_treasure=1,
                 experiment={"tag": tag, "config_id": f"{tag}-{size}"},
             )
     main([str(tmp_path / "runs"), "--out", str(tmp_path / "out")])
     results = (tmp_path / "out" / "results.md").read_text()
-    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_learned]")[1:] == ["1/1, 20 [20, 20]", "1/1, 40 [40, 40]"]
-    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_categorical]")[1:] == ["1/1, 10 [10, 10]", "1/1, 15 [15, 15]"]
+    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_learned]")[1:] == [
+        "1/1, 20 [20, 20]",
+        "1/1, 40 [40, 40]",
+    ]
+    assert table_row(results, "### Episodes to solved", "dqn+diagonal [deepsea_categorical]")[1:] == [
+        "1/1, 10 [10, 10]",
+        "1/1, 15 [15, 15]",
+    ]

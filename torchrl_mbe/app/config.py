@@ -13,6 +13,7 @@ every value once, before anything is built: each field carries its rule
 (:func:`setting`), and the rules that tie fields together follow. A bad value
 raises :class:`ConfigError` naming the key, the value and what is accepted.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -47,18 +48,18 @@ from torchrl_mbe.modules.exploration import check_eps_schedule
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
 
 __all__ = [
-    "ConfigError",
     "Config",
+    "ConfigError",
     "DQNConfig",
     "ReinforceConfig",
     "check_config",
     "config_differences",
     "config_id",
     "method_name",
-    "seeds_name",
-    "with_size",
-    "with_env_group",
     "register_configs",
+    "seeds_name",
+    "with_env_group",
+    "with_size",
 ]
 
 
@@ -67,7 +68,9 @@ class EnvConfig:
     name: str = "mountaincar"  # a short name (conf/env/), any discrete-action gymnasium id, or module:EnvId
     num_envs: int = setting(1, POSITIVE_INT)  # >1: a batch of envs, one novelty window each
     size: Optional[int] = setting(None, POSITIVE_INT.or_none())  # env=deepsea: the grid's side N (bsuite: 10 to 50)
-    make_kwargs: Dict[str, Any] = field(default_factory=dict)  # gym.make's keyword arguments: +env.make_kwargs.is_slippery=false
+    make_kwargs: Dict[str, Any] = field(
+        default_factory=dict
+    )  # gym.make's keyword arguments: +env.make_kwargs.is_slippery=false
 
 
 @dataclass
@@ -79,7 +82,9 @@ class DQNConfig:
     gamma: float = setting(0.99, DISCOUNT)
     n_steps: int = setting(1, POSITIVE_INT)  # n-step returns (1: the paper)
     lr: float = setting(2e-3, POSITIVE)  # Adam
-    lr_decay_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # linear decay over these frames (after learning_starts)
+    lr_decay_frames: Optional[int] = setting(
+        None, POSITIVE_INT.or_none()
+    )  # linear decay over these frames (after learning_starts)
     lr_end_factor: float = setting(1.0, FRACTION)  # the learning rate ends at lr * lr_end_factor
     batch_size: int = setting(256, POSITIVE_INT)
     learning_starts: int = setting(1000, NON_NEGATIVE_INT)  # frames collected before the first update
@@ -119,7 +124,9 @@ class DynamicsConfig:
     updates_per_frame: float = setting(0.25, NON_NEGATIVE)
     max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())
     prior_scale: float = setting(0.0, NON_NEGATIVE)  # a frozen random network's weight in each prediction (0: none)
-    prior_num_cells: Optional[list[int]] = setting(None, LAYERS.or_none())  # the prior's hidden layers (null: num_cells)
+    prior_num_cells: Optional[list[int]] = setting(
+        None, LAYERS.or_none()
+    )  # the prior's hidden layers (null: num_cells)
     normalize: bool = True  # standardize inputs and deltas; false keeps raw units (one-hot observations)
     output: str = setting("delta", one_of(*OUTPUTS))  # categorical: a softmax over a one-hot observation's entries
 
@@ -151,7 +158,9 @@ class TrainConfig:
     max_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # optional cap on frames
     checkpoint_every_frames: int = setting(20_000, POSITIVE_INT)
     save_visited_states: bool = False  # write visited_states.npy (the coverage experiment)
-    stop_when_solved: bool = False  # end at the first periodic evaluation at or above the solved threshold that eval.final_episodes confirm
+    stop_when_solved: bool = (
+        False  # end at the first periodic evaluation at or above the solved threshold that eval.final_episodes confirm
+    )
 
 
 @dataclass
@@ -175,14 +184,18 @@ class Config:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     seed: int = setting(0, NON_NEGATIVE_INT)
-    population: int = setting(1, POSITIVE_INT)  # >1: agents of seeds seed .. seed+population-1 trained as one batched program
+    population: int = setting(
+        1, POSITIVE_INT
+    )  # >1: agents of seeds seed .. seed+population-1 trained as one batched program
     device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
     tag: str = "default"  # part of the run directory; presets set their own
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     progress_bar: bool = True
     torch_threads: Optional[int] = setting(1, POSITIVE_INT.or_none())  # null keeps torch's default
     compile: bool = False  # torch.compile the update step (falls back to eager if compilation fails)
-    match_observation: bool = True  # a one-hot observation gets the categorical model and visit counts (torchrl_mbe.app.observation)
+    match_observation: bool = (
+        True  # a one-hot observation gets the categorical model and visit counts (torchrl_mbe.app.observation)
+    )
 
 
 def register_configs() -> None:
@@ -204,7 +217,9 @@ def register_configs() -> None:
     for backend in BACKENDS:
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
     if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
-        OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(matched(_root_)))  # the explorer its observation gets
+        OmegaConf.register_new_resolver(
+            "method_name", lambda *, _root_: method_name(matched(_root_))
+        )  # the explorer its observation gets
     if not OmegaConf.has_resolver("env_name"):  # ... and after the env, with its size
         OmegaConf.register_new_resolver("env_name", lambda *, _root_: with_size(_root_.env.name, _root_.env.size))
     if not OmegaConf.has_resolver("seeds"):  # ... and after the seed, or a population's seeds
@@ -276,14 +291,18 @@ def _check_together(config: Config) -> None:
         raise ConfigError(f"env.name={config.env.name!r}: {error}") from None
     _check_device(config.device)
     if config.env.size is not None and env_id != TASKS["deepsea"].env_id:
-        raise ConfigError(f"env.size={config.env.size}: only env=deepsea has a size; leave it unset (null) for {config.env.name}.")
+        raise ConfigError(
+            f"env.size={config.env.size}: only env=deepsea has a size; leave it unset (null) for {config.env.name}."
+        )
     if (missing := backend_unavailable(config.logger.backend)) is not None:
         raise ConfigError(f"logger={config.logger.backend}: {missing}")
     num_envs, frames_per_batch = config.env.num_envs, config.collector.frames_per_batch
     if isinstance(config.algo, ReinforceConfig) and num_envs != 1:
         raise ConfigError(f"env.num_envs={num_envs}: algo=reinforce plays one episode at a time; use env.num_envs=1.")
     if frames_per_batch % num_envs:
-        raise ConfigError(f"collector.frames_per_batch={frames_per_batch}: expected a multiple of env.num_envs={num_envs}.")
+        raise ConfigError(
+            f"collector.frames_per_batch={frames_per_batch}: expected a multiple of env.num_envs={num_envs}."
+        )
     if isinstance(config.algo, DQNConfig):
         algo = config.algo
         try:
@@ -292,7 +311,9 @@ def _check_together(config: Config) -> None:
             raise ConfigError(f"algo (eps_init, eps_end, eps_schedule): {error}") from None
     if is_planning(config) and config.dynamics.name == "oracle" and getattr(task_of(env_id), "oracle", None) is None:
         with_oracle = ", ".join(alias for alias, task in TASKS.items() if task.oracle is not None)
-        raise ConfigError(f"dynamics=oracle: {config.env.name} has no oracle dynamics (those that have: {with_oracle}); use dynamics=mlp.")
+        raise ConfigError(
+            f"dynamics=oracle: {config.env.name} has no oracle dynamics (those that have: {with_oracle}); use dynamics=mlp."
+        )
     try:
         check_output(config.dynamics.output, config.dynamics.normalize)
     except ValueError as error:  # the dynamics model's own rule, named by the keys it reads
@@ -307,9 +328,13 @@ def _check_population(config: Config) -> None:
     if not isinstance(config.algo, DQNConfig):
         raise ConfigError(f"{refusal}: only algo=dqn trains populations; use population=1 for algo={config.algo.name}.")
     if config.buffer.name != "uniform":
-        raise ConfigError(f"{refusal}: buffer={config.buffer.name} keeps one priority tree for all members; use buffer=uniform or population=1.")
+        raise ConfigError(
+            f"{refusal}: buffer={config.buffer.name} keeps one priority tree for all members; use buffer=uniform or population=1."
+        )
     if is_planning(config) and config.exploration.model_error_threshold is not None:
-        raise ConfigError(f"{refusal}: exploration.model_error_threshold switches one warm-up for all members; leave it null or use population=1.")
+        raise ConfigError(
+            f"{refusal}: exploration.model_error_threshold switches one warm-up for all members; leave it null or use population=1."
+        )
 
 
 def _check_device(device: str) -> None:
@@ -417,4 +442,3 @@ def _flatten(tree: dict, prefix: str = "") -> dict:
         else:
             flat[name] = value
     return flat
-

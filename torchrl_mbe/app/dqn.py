@@ -7,6 +7,7 @@ then the Q steps with their target update and eps annealing), then the run's
 bookkeeping (:mod:`torchrl_mbe.app.run`). What differs between explorers lives in
 :mod:`torchrl_mbe.app.explorers`; the loop calls the explorer's hooks.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -125,7 +126,13 @@ class DQNAgent:
         q_input_norm: Standardize,
         settings: DQNSettings,
     ) -> None:
-        self.actor, self.explorer, self.q_loss, self.target_updater, self.q_step = actor, explorer, q_loss, target_updater, q_step
+        self.actor, self.explorer, self.q_loss, self.target_updater, self.q_step = (
+            actor,
+            explorer,
+            q_loss,
+            target_updater,
+            q_step,
+        )
         self.q_input_norm, self.settings = q_input_norm, settings
         self.standardizes_inputs = any(module is q_input_norm for module in actor.modules())
         self.members = q_step.num_members or 1  # a population's agents learn together, each from its own frames
@@ -170,7 +177,15 @@ class DQNAgent:
             self.q_updates += 1
             self.q_update_credit -= 1
             if settings.log_every_updates and self.q_updates % settings.log_every_updates == 0:
-                rows.append({"frames": frames, "updates": self.q_updates, **losses, **self.explorer.log_fields(), "eps": self.eps})
+                rows.append(
+                    {
+                        "frames": frames,
+                        "updates": self.q_updates,
+                        **losses,
+                        **self.explorer.log_fields(),
+                        "eps": self.eps,
+                    }
+                )
         return rows
 
     def summary_fields(self) -> dict[str, int]:
@@ -233,15 +248,25 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         num_members=members,
     )
     loss_class, loss_key = (DQNLoss, "loss") if members is None else (PopulationDQNLoss, "member_loss")
-    q_loss = loss_class(actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec)
+    q_loss = loss_class(
+        actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec
+    )
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
     _resolve_input_keys(q_loss)
-    context = ExplorerContext(cfg, env, actor, q_loss, action_spec, observation_size, device, members, env_options(cfg.env))
+    context = ExplorerContext(
+        cfg, env, actor, q_loss, action_spec, observation_size, device, members, env_options(cfg.env)
+    )
     explorer = explorer_class.build(context)
     q_step = GradientStep(
-        lambda batch: q_loss(batch)[loss_key], adam(q_loss.parameters(), algo.lr), algo.max_grad_norm, compile=cfg.compile, num_members=members
+        lambda batch: q_loss(batch)[loss_key],
+        adam(q_loss.parameters(), algo.lr),
+        algo.max_grad_norm,
+        compile=cfg.compile,
+        num_members=members,
     )
-    return DQNAgent(actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg))
+    return DQNAgent(
+        actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg)
+    )
 
 
 def num_members(cfg: DictConfig) -> int | None:
@@ -272,7 +297,13 @@ def make_q_actor(
     """
     if num_members is not None:
         return make_population_q_actor(
-            observation_size, action_spec, num_cells, num_members, input_norm=input_norm, noise_std=noise_std, device=device
+            observation_size,
+            action_spec,
+            num_cells,
+            num_members,
+            input_norm=input_norm,
+            noise_std=noise_std,
+            device=device,
         )
     network = make_per_action_mlp(observation_size, action_spec, num_cells, device=device, noise_std=noise_std)
     if input_norm is not None:

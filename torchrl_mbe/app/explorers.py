@@ -14,6 +14,7 @@ and its :meth:`~Explorer.build`, which returns the explorer with a fixed shape:
 The loop never asks which explorer it has. Adding one means adding a class here
 (and its line in :data:`EXPLORERS`); see ``docs/architecture.md``.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -34,11 +35,16 @@ from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
+from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
-from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.population import PopulationRNDLoss, PopulationRNDTransform, make_members_mlp, reset_members_noise
+from torchrl_mbe.modules.population import (
+    PopulationRNDLoss,
+    PopulationRNDTransform,
+    make_members_mlp,
+    reset_members_noise,
+)
 from torchrl_mbe.objectives import DynamicsLoss
 from torchrl_mbe.rundir import is_int
 
@@ -160,7 +166,9 @@ class EGreedyExplorer(Explorer):
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
-        egreedy = AnnealedEGreedyModule(context.action_spec, **eps_schedule(context.cfg.algo), device=context.action_spec.device)
+        egreedy = AnnealedEGreedyModule(
+            context.action_spec, **eps_schedule(context.cfg.algo), device=context.action_spec.device
+        )
         return cls(TensorDictSequential(context.actor, egreedy), egreedy)
 
     @classmethod
@@ -198,7 +206,9 @@ class RNDExplorer(EGreedyExplorer):
 
     schema = RNDExploration
 
-    def __init__(self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float) -> None:
+    def __init__(
+        self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float
+    ) -> None:
         super().__init__(policy, eps_module)
         self.rnd, self.loss, self.step, self.intrinsic_coef = rnd, loss, step, intrinsic_coef
 
@@ -208,12 +218,18 @@ class RNDExplorer(EGreedyExplorer):
         exploration, members = context.cfg.exploration, context.num_members
         target, predictor = (cls._network(context) for _ in range(2))
         transform, loss, loss_key = (
-            (RNDTransform, RNDLoss, "loss_predictor") if members is None else (PopulationRNDTransform, PopulationRNDLoss, "member_loss")
+            (RNDTransform, RNDLoss, "loss_predictor")
+            if members is None
+            else (PopulationRNDTransform, PopulationRNDLoss, "member_loss")
         )
         rnd, loss = transform(target, predictor), loss(predictor, target)
         context.env.append_transform(rnd)
         step = GradientStep(
-            lambda batch: loss(batch)[loss_key], adam(predictor.parameters(), exploration.lr), None, compile=context.cfg.compile, num_members=members
+            lambda batch: loss(batch)[loss_key],
+            adam(predictor.parameters(), exploration.lr),
+            None,
+            compile=context.cfg.compile,
+            num_members=members,
         )
         return cls(egreedy.policy, egreedy.eps_module, rnd, loss, step, exploration.intrinsic_coef)
 
@@ -224,10 +240,20 @@ class RNDExplorer(EGreedyExplorer):
         in_features, out_features = context.observation_size, exploration.embedding_size
         if context.num_members is None:
             return MLP(
-                in_features=in_features, out_features=out_features, num_cells=list(exploration.num_cells), activation_class=torch.nn.Tanh, device=context.device
+                in_features=in_features,
+                out_features=out_features,
+                num_cells=list(exploration.num_cells),
+                activation_class=torch.nn.Tanh,
+                device=context.device,
             )
         return make_members_mlp(
-            in_features, out_features, exploration.num_cells, context.num_members, activation_class=torch.nn.Tanh, glorot=False, device=context.device
+            in_features,
+            out_features,
+            exploration.num_cells,
+            context.num_members,
+            activation_class=torch.nn.Tanh,
+            glorot=False,
+            device=context.device,
         )
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
@@ -259,7 +285,9 @@ class NoisyExplorer(Explorer):
 
     def __init__(self, policy: TensorDictModuleBase, num_members: int | None = None) -> None:
         super().__init__(policy)
-        self.reset_noise = reset_noise if num_members is None else reset_members_noise  # a population's noise is stacked [M, ...]
+        self.reset_noise = (
+            reset_noise if num_members is None else reset_members_noise
+        )  # a population's noise is stacked [M, ...]
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -281,7 +309,9 @@ class PlanningExploration(ExplorationConfig):
 
     window: int = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)"))
     horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
-    model_error_threshold: Optional[float] = setting(None, NON_NEGATIVE.or_none())  # random until the model is this good
+    model_error_threshold: Optional[float] = setting(
+        None, NON_NEGATIVE.or_none()
+    )  # random until the model is this good
 
 
 class DynamicsTraining:
@@ -299,7 +329,11 @@ class DynamicsTraining:
             compile=compile,
             num_members=model.num_members,
         )
-        self.learning_starts, self.updates_per_frame, self.batch_size = dynamics.learning_starts, dynamics.updates_per_frame, dynamics.batch_size
+        self.learning_starts, self.updates_per_frame, self.batch_size = (
+            dynamics.learning_starts,
+            dynamics.updates_per_frame,
+            dynamics.batch_size,
+        )
         self.updates, self.credit, self.last_loss = 0, 0.0, None
 
     def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
@@ -318,7 +352,12 @@ class DynamicsTraining:
         return self.step(replay_buffer.sample(self.batch_size).exclude("index"))
 
     def state_dict(self) -> dict:
-        return {"optimizer": self.step.optimizer.state_dict(), "updates": self.updates, "credit": self.credit, "last_loss": self.last_loss}
+        return {
+            "optimizer": self.step.optimizer.state_dict(),
+            "updates": self.updates,
+            "credit": self.credit,
+            "last_loss": self.last_loss,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.step.optimizer.load_state_dict(state["optimizer"])
@@ -339,7 +378,11 @@ class PlanningExplorer(EGreedyExplorer):
     scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
     def __init__(
-        self, policy: ModelBasedExplorationPolicy, loss: DynamicsLoss, training: DynamicsTraining | None, num_members: int | None = None
+        self,
+        policy: ModelBasedExplorationPolicy,
+        loss: DynamicsLoss,
+        training: DynamicsTraining | None,
+        num_members: int | None = None,
     ) -> None:
         super().__init__(policy, policy)
         self.loss = loss
@@ -365,14 +408,20 @@ class PlanningExplorer(EGreedyExplorer):
                 output=cfg.dynamics.output,
                 device=context.device,
             )
-        novelty = cls.make_novelty(exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device)
+        novelty = cls.make_novelty(
+            exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device
+        )
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
         policy = ModelBasedExplorationPolicy(
             context.actor, planner, **eps_schedule(cfg.algo), model_error_threshold=exploration.model_error_threshold
         )
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
-        training = DynamicsTraining(dynamics, loss, cfg.dynamics, compile=cfg.compile) if isinstance(dynamics, DynamicsModel) else None
+        training = (
+            DynamicsTraining(dynamics, loss, cfg.dynamics, compile=cfg.compile)
+            if isinstance(dynamics, DynamicsModel)
+            else None
+        )
         return cls(policy, loss, training, context.num_members)
 
     @classmethod
@@ -404,13 +453,19 @@ class PlanningExplorer(EGreedyExplorer):
 
     def log_fields(self) -> dict[str, float | None]:
         val_error = self.val_error.tolist() if self.val_error is not None else None
-        return {"loss_dynamics": self.training.last_loss if self.training is not None else None, "dynamics_val_error": val_error}
+        return {
+            "loss_dynamics": self.training.last_loss if self.training is not None else None,
+            "dynamics_val_error": val_error,
+        }
 
     def summary_fields(self) -> dict[str, int]:
         return {"dynamics_updates": self.training.updates if self.training is not None else 0}
 
     def state_dict(self) -> dict:
-        return {"val_error": self.val_error, "training": self.training.state_dict() if self.training is not None else None}
+        return {
+            "val_error": self.val_error,
+            "training": self.training.state_dict() if self.training is not None else None,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         self.val_error = state["val_error"]
@@ -450,9 +505,15 @@ class KernelExplorer(PlanningExplorer):
 @dataclass
 class DiagonalExploration(PlanningExploration):
     name: str = "diagonal"  # a Gaussian without correlations
-    window: Optional[int] = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())  # null: every visited state
-    min_variance: float = setting(1e-8, POSITIVE)  # each dimension's variance floor: predictions off it by less than its root look familiar
-    added_variance: float = setting(0.0, NON_NEGATIVE)  # added to each variance before the floor: keeps the order the floor ties
+    window: Optional[int] = setting(
+        50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none()
+    )  # null: every visited state
+    min_variance: float = setting(
+        1e-8, POSITIVE
+    )  # each dimension's variance floor: predictions off it by less than its root look familiar
+    added_variance: float = setting(
+        0.0, NON_NEGATIVE
+    )  # added to each variance before the floor: keeps the order the floor ties
 
 
 class DiagonalExplorer(PlanningExplorer):

@@ -1,4 +1,5 @@
 """Run logging: the run directory's CSV tables (always), mirrored to Weights & Biases or TensorBoard when asked."""
+
 from __future__ import annotations
 
 import csv

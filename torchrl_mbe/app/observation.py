@@ -13,6 +13,7 @@ Settings the command line names (``exploration=...``, ``dynamics.num_cells=...``
 presets (``experiment=``, which set ``match_observation: false``) and
 ``match_observation=false`` win: only what nobody chose follows the observation.
 """
+
 from __future__ import annotations
 
 from hydra.core.hydra_config import HydraConfig
@@ -33,7 +34,13 @@ __all__ = [
     "observation_kind",
 ]
 
-CATEGORICAL_DYNAMICS = {"output": "categorical", "normalize": False, "num_cells": [256], "prior_num_cells": [32], "prior_scale": 25.0}
+CATEGORICAL_DYNAMICS = {
+    "output": "categorical",
+    "normalize": False,
+    "num_cells": [256],
+    "prior_num_cells": [32],
+    "prior_scale": 25.0,
+}
 """The dynamics model of a one-hot observation (``experiment=deepsea_categorical``'s)."""
 
 COUNTS_EXPLORATION = DiagonalExploration(window=None, min_variance=1e-8, added_variance=1e-3)
@@ -103,4 +110,3 @@ def named_on_command_line() -> set[str]:
 def _names(named: set[str], key: str) -> bool:
     """Whether the command line sets ``key`` or anything under it."""
     return any(name == key or name.startswith(key + ".") for name in named)
-

@@ -1,4 +1,5 @@
 """Optimization steps shared by the algorithms: fused Adam and one gradient step of a loss."""
+
 from __future__ import annotations
 
 import logging
@@ -60,7 +61,9 @@ class GradientStep:
         self.optimizer = optimizer
         self.max_grad_norm = max_grad_norm
         self.num_members = num_members
-        self._loss_and_backward = torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
+        self._loss_and_backward = (
+            torch.compile(self._eager_loss_and_backward) if compile else self._eager_loss_and_backward
+        )
 
     def __call__(self, batch: TensorDictBase) -> float | list[float]:
         """Takes the step on ``batch`` and returns the loss before it (each member's, with ``num_members``)."""

@@ -14,6 +14,7 @@ budget is spent, or when solved with ``train.stop_when_solved``; its networks th
 go on computing with the others, unrecorded. The process ends when every member
 has stopped. One checkpoint, in ``run_dir``, resumes the whole population.
 """
+
 from __future__ import annotations
 
 import functools
@@ -62,7 +63,7 @@ from torchrl_mbe.envs import resolve_env_id
 from torchrl_mbe.modules.population import PopulationReplayBuffer, member_state_dict
 from torchrl_mbe.rundir import CHECKPOINT, SUMMARY
 
-__all__ = ["Population", "train_dqn_population", "member_dir"]
+__all__ = ["Population", "member_dir", "train_dqn_population"]
 
 log = logging.getLogger(__name__)
 
@@ -75,10 +76,14 @@ def train_dqn_population(cfg: DictConfig, run_dir: Path) -> dict:
     agent = build_dqn_agent(cfg, env)
     replay_buffer = PopulationReplayBuffer(cfg.buffer.size, members, device=cfg.device)
     # Built before a resume restores torch's generator: checking the policy draws from it.
-    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * members, total_frames=-1)
+    collector = Collector(
+        env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * members, total_frames=-1
+    )
     population = open_population(cfg, run_dir, agent)
     keep_in_checkpoints(population, "replay_buffer", replay_buffer)
-    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef, num_members=members)
+    transitions = ReplayTransitions(
+        cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef, num_members=members
+    )
     keep_in_checkpoints(population, "transitions", transitions)
     keep_in_checkpoints(population, "collector", CollectorState(collector))
     batches = iter(collector)
@@ -210,7 +215,9 @@ def _open_member(population: Population, member: int, state: dict) -> None:
     progress = Progress(**state["progress"])
     if state["stopped"] and (progress.frames < population.frames or budget_spent(member_cfg.train, progress)):
         if not (directory / SUMMARY).exists():
-            raise ConfigError(f"{directory / SUMMARY} is missing: the checkpoint says this member has stopped. Start a new population.")
+            raise ConfigError(
+                f"{directory / SUMMARY} is missing: the checkpoint says this member has stopped. Start a new population."
+            )
         population.summaries[member] = json.loads((directory / SUMMARY).read_text())
         population.stopped[member] = state
         return
@@ -244,9 +251,17 @@ def _population_bar(cfg: DictConfig) -> tqdm:
 def _update_bar(population: Population) -> None:
     bar, runs = population.bar, [run for _, run in population.active()]
     if runs:
-        bar.n = population.frames if population.cfg.train.max_frames is not None else min(run.progress.episodes for run in runs)
+        bar.n = (
+            population.frames
+            if population.cfg.train.max_frames is not None
+            else min(run.progress.episodes for run in runs)
+        )
     members = population.cfg.population
-    bar.set_postfix(solved=f"{_solved_count(population)}/{members}", stopped=f"{len(population.summaries)}/{members}", eps=f"{population.agent.eps:.3f}")
+    bar.set_postfix(
+        solved=f"{_solved_count(population)}/{members}",
+        stopped=f"{len(population.summaries)}/{members}",
+        eps=f"{population.agent.eps:.3f}",
+    )
 
 
 def _solved_count(population: Population) -> int:
@@ -265,7 +280,10 @@ def record_member_frames(population: Population, batch: TensorDictBase) -> None:
 def record_member_updates(population: Population, rows: list[dict]) -> None:
     """Logs each training member's part of the agent's update rows (a list holds one value per member)."""
     for member, run in population.active():
-        record_updates(run, [{key: value[member] if isinstance(value, list) else value for key, value in row.items()} for row in rows])
+        record_updates(
+            run,
+            [{key: value[member] if isinstance(value, list) else value for key, value in row.items()} for row in rows],
+        )
 
 
 def evaluate_and_checkpoint_if_due(population: Population, new_frames: int) -> None:
@@ -273,7 +291,9 @@ def evaluate_and_checkpoint_if_due(population: Population, new_frames: int) -> N
     cfg = population.cfg
     if crossed(population.frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
         results = evaluate_members(population.agent.actor, population.eval_env, population.env_id)
-        final = functools.cache(lambda: _final_evaluation(population))  # played once, if a member's result asks for confirmation
+        final = functools.cache(
+            lambda: _final_evaluation(population)
+        )  # played once, if a member's result asks for confirmation
         for member, run in population.active():
             note_evaluation(run, results[member], confirm=lambda member=member: final()[member])
     if crossed(population.frames, new_frames, cfg.train.checkpoint_every_frames):
@@ -292,7 +312,12 @@ def stop_finished_members(population: Population) -> None:
         population.summaries[member] = close_run(run, result)
         population.stopped[member] = _member_state(run, stopped=True)
         del population.runs[member]
-        log.info("Member %d of %d stopped. %s", member + 1, population.cfg.population, summary_line(population.summaries[member], run.run_dir))
+        log.info(
+            "Member %d of %d stopped. %s",
+            member + 1,
+            population.cfg.population,
+            summary_line(population.summaries[member], run.run_dir),
+        )
     if finishing:
         _update_bar(population)
 
@@ -307,7 +332,9 @@ def _final_evaluation(population: Population) -> list[dict]:
 def save_checkpoint(population: Population) -> None:
     """The whole population's checkpoint, atomically: the agent, the shared parts and each member's counters."""
     members = [
-        population.stopped[member] if member in population.stopped else _member_state(population.runs[member], stopped=False)
+        population.stopped[member]
+        if member in population.stopped
+        else _member_state(population.runs[member], stopped=False)
         for member in range(population.cfg.population)
     ]
     checkpoint = {

@@ -30,6 +30,7 @@ directory layout (``episodes.csv`` with ``eps`` 0, ``evaluations.csv``,
 the policy under ``ExplorationType.DETERMINISTIC``), checkpoints (policy and
 optimizer) with ``resume=true``, and Ctrl-C handling.
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -62,7 +63,14 @@ from torchrl_mbe.app.run import (
 )
 from torchrl_mbe.modules import make_per_action_mlp
 
-__all__ = ["ReinforceAgent", "build_reinforce_agent", "make_policy_actor", "write_advantage", "update_policy", "train_reinforce"]
+__all__ = [
+    "ReinforceAgent",
+    "build_reinforce_agent",
+    "make_policy_actor",
+    "train_reinforce",
+    "update_policy",
+    "write_advantage",
+]
 
 
 @dataclass
@@ -151,7 +159,9 @@ def build_reinforce_agent(cfg: DictConfig, env: EnvBase) -> ReinforceAgent:
     zero_baseline = TensorDictModule(_zero_value, in_keys=["observation"], out_keys=["state_value"])
     loss = ReinforceLoss(actor, zero_baseline, functional=False)
     gamma = cfg.algo.gamma
-    step = GradientStep(lambda episode: loss(write_advantage(episode, gamma))["loss_actor"], adam(actor.parameters(), cfg.algo.lr), None)
+    step = GradientStep(
+        lambda episode: loss(write_advantage(episode, gamma))["loss_actor"], adam(actor.parameters(), cfg.algo.lr), None
+    )
     return ReinforceAgent(actor, loss, step, gamma)
 
 

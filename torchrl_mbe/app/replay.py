@@ -1,8 +1,10 @@
 """Replay for DQN: the buffer, and the transitions stored in it (n-step, through TorchRL)."""
+
 from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import ClassVar
 
 import torch
 from omegaconf import DictConfig
@@ -14,7 +16,15 @@ from torchrl.envs import EnvBase, MultiStepTransform
 from torchrl_mbe.app.settings import ConfigError
 from torchrl_mbe.rundir import CHECKPOINT
 
-__all__ = ["SUCCESSOR_KEY", "check_replay_fits", "make_replay_buffer", "ReplayState", "ReplayTransitions", "flatten_frames", "one_step_transitions"]
+__all__ = [
+    "SUCCESSOR_KEY",
+    "ReplayState",
+    "ReplayTransitions",
+    "check_replay_fits",
+    "flatten_frames",
+    "make_replay_buffer",
+    "one_step_transitions",
+]
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
@@ -39,7 +49,9 @@ def check_replay_fits(buffer: DictConfig, env: EnvBase, members: int, device: st
     transitions = f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about {needed / 2**30:.1f} GiB"
     available = _available_memory_bytes() if torch.device(device).type == "cpu" else None
     if available is not None and needed > available:
-        raise ConfigError(f"{transitions}, more than the {available / 2**30:.1f} GiB available; lower buffer.size (or population).")
+        raise ConfigError(
+            f"{transitions}, more than the {available / 2**30:.1f} GiB available; lower buffer.size (or population)."
+        )
     on_disk = needed if (run_dir / CHECKPOINT).exists() else 2 * needed
     free = _free_disk_bytes(run_dir)
     if on_disk > free:
@@ -101,7 +113,7 @@ class ReplayState:
         (True, True)
     """
 
-    _TREES = {"_sum_tree": SumSegmentTreeFp32, "_min_tree": MinSegmentTreeFp32}
+    _TREES: ClassVar[dict[str, type]] = {"_sum_tree": SumSegmentTreeFp32, "_min_tree": MinSegmentTreeFp32}
 
     def __init__(self, buffer: ReplayBuffer) -> None:
         self.buffer = buffer
@@ -152,7 +164,14 @@ class ReplayTransitions:
         ([3.0, 3.0], [True, True])
     """
 
-    KEYS = ("observation", "action", ("next", "observation"), ("next", "reward"), ("next", "done"), ("next", "terminated"))
+    KEYS = (
+        "observation",
+        "action",
+        ("next", "observation"),
+        ("next", "reward"),
+        ("next", "done"),
+        ("next", "terminated"),
+    )
 
     def __init__(
         self, n_steps: int, gamma: float, *, intrinsic_coef: float | None = None, num_members: int | None = None

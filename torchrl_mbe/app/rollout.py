@@ -9,6 +9,7 @@ have taken. A gymnasium-backed env (LunarLander, or ``backend=gym``) cannot be
 saved: a resumed run starts fresh episodes there, and its unfinished ones are
 never logged.
 """
+
 from __future__ import annotations
 
 from tensordict import TensorDict
@@ -17,7 +18,7 @@ from torchrl.envs import EnvBase
 
 from torchrl_mbe.envs.registry import TASKS
 
-__all__ = ["EnvState", "CollectorState", "saves_exactly"]
+__all__ = ["CollectorState", "EnvState", "saves_exactly"]
 
 _CARRIER_OWN_KEYS = ("collector",)  # the collector's trajectory ids, renumbered by every collector
 

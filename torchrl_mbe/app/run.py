@@ -7,6 +7,7 @@ builds its agent, calls :func:`open_run`, and for every batch of frames calls
 checkpoint); it ends with :func:`finish_run`. The files
 it writes are those of :mod:`torchrl_mbe.rundir`.
 """
+
 from __future__ import annotations
 
 import json
@@ -30,39 +31,46 @@ from tqdm.auto import tqdm
 
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
 from torchrl_mbe.app.loggers import RunLogger
-from torchrl_mbe.app.rollout import EnvState
-from torchrl_mbe.envs import finished_episodes, first_episodes, make_env, play_first_episodes, reached_goal, resolve_env_id
 from torchrl_mbe.app.observation import env_options
+from torchrl_mbe.app.rollout import EnvState
+from torchrl_mbe.envs import (
+    finished_episodes,
+    first_episodes,
+    make_env,
+    play_first_episodes,
+    reached_goal,
+    resolve_env_id,
+)
 from torchrl_mbe.envs.registry import SolvedRule, solved_rule
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
+    "CHECKPOINT_FORMAT",
     "Agent",
     "Progress",
-    "budget_spent",
+    "Resumable",
     "Run",
     "RunFinished",
     "StopOnInterrupt",
-    "open_run",
-    "record_frames",
-    "evaluate_and_checkpoint_if_due",
-    "finish_run",
-    "evaluate",
-    "play_episode",
-    "record_updates",
-    "make_run_env",
-    "keep_in_checkpoints",
-    "note_evaluation",
-    "evaluate_members",
+    "budget_spent",
     "close_run",
     "confirmed_now",
     "crossed",
+    "evaluate",
+    "evaluate_and_checkpoint_if_due",
+    "evaluate_members",
+    "finish_run",
+    "keep_in_checkpoints",
     "log_evaluation",
+    "make_run_env",
+    "note_evaluation",
+    "open_run",
+    "play_episode",
     "read_checkpoint",
+    "record_frames",
+    "record_updates",
     "refuse_to_overwrite",
     "save_atomically",
-    "Resumable",
-    "CHECKPOINT_FORMAT",
 ]
 
 log = logging.getLogger(__name__)
@@ -330,7 +338,9 @@ def _record_episodes(run: Run, batch: TensorDictBase, eps: float) -> None:
         )
         if run.cfg.train.max_frames is None:
             run.bar.update(1)
-        run.bar.set_postfix(episodes=progress.episodes, frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}")
+        run.bar.set_postfix(
+            episodes=progress.episodes, frames=progress.frames, ret=f"{episode.episode_return:.0f}", eps=f"{eps:.3f}"
+        )
 
 
 def _visited_states(batch: TensorDictBase, progress: Progress) -> tuple[torch.Tensor, torch.Tensor]:
@@ -378,13 +388,23 @@ def _confirm_solved(run: Run, rule: SolvedRule, confirm: Callable[[], dict]) -> 
     if run.cfg.eval.final_episodes:
         result = confirm()
         log.info(
-            "Confirming evaluation at %d frames (%d episodes): %s %.2f", progress.frames, run.cfg.eval.final_episodes, rule.metric, result[rule.metric]
+            "Confirming evaluation at %d frames (%d episodes): %s %.2f",
+            progress.frames,
+            run.cfg.eval.final_episodes,
+            rule.metric,
+            result[rule.metric],
         )
         if result[rule.metric] < rule.threshold:
             return
         run.confirmation = (progress.frames, result)
     progress.solved_at_frames, progress.solved_at_wall_time_s = progress.frames, round(progress.wall_time_s, 2)
-    log.info("Solved at %d frames (%.1f s), greedy %s >= %g", progress.frames, progress.wall_time_s, rule.metric, rule.threshold)
+    log.info(
+        "Solved at %d frames (%.1f s), greedy %s >= %g",
+        progress.frames,
+        progress.wall_time_s,
+        rule.metric,
+        rule.threshold,
+    )
 
 
 def _final_evaluation(run: Run) -> dict:
@@ -481,7 +501,7 @@ def load_safely(path: Path) -> dict:
     """
     try:
         return torch.load(path, weights_only=True)
-    except Exception as error:
+    except Exception as error:  # noqa: BLE001 (torch.load raises many types; each becomes one line naming the file)
         code = re.search(r"Unsupported global: GLOBAL (\S+)", str(error))
         if code is not None:
             raise ConfigError(
@@ -514,7 +534,10 @@ def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
         if confirmed_now(run):
             final = run.confirmation[1]  # the same policy, evaluated just now
         elif not interrupt.requested and episodes:
-            log.info("Final greedy evaluation: %d episodes side by side (Ctrl-C stops it; the checkpoint is saved).", episodes)
+            log.info(
+                "Final greedy evaluation: %d episodes side by side (Ctrl-C stops it; the checkpoint is saved).",
+                episodes,
+            )
             final = _final_evaluation(run)
     except KeyboardInterrupt:
         interrupt.requested = True

@@ -5,6 +5,7 @@ The schema (:mod:`torchrl_mbe.app.config`, and each explorer's in
 default and its rule stand together; :func:`~torchrl_mbe.app.config.check_config`
 applies the rules and raises :class:`ConfigError`.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -14,10 +15,6 @@ from typing import Any
 from torchrl_mbe.rundir import is_int, is_number
 
 __all__ = [
-    "ConfigError",
-    "Rule",
-    "setting",
-    "one_of",
     "ANY",
     "DISCOUNT",
     "FRACTION",
@@ -27,6 +24,10 @@ __all__ = [
     "POSITIVE",
     "POSITIVE_INT",
     "PROBABILITY",
+    "ConfigError",
+    "Rule",
+    "one_of",
+    "setting",
 ]
 
 

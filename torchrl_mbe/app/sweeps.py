@@ -7,6 +7,7 @@ member's run directory under the job's (``<sweep dir>/0/seed0`` ... ``seed4``). 
 launcher itself (``hydra_plugins/torchrl_mbe_launcher``) is Hydra's sequential one with
 this grouping in front.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
@@ -42,7 +43,9 @@ def group_seeds(job_overrides: Sequence[Sequence[str]], can_group: Callable[[lis
         buffer=prioritized seed=5
     """
     groups: dict[tuple[str, ...], dict[int, list[str]]] = {}  # the other overrides -> each seed's job
-    grouped: list[list[str] | tuple[str, ...]] = []  # a job left as it is, or the key of its group (first member's place)
+    grouped: list[
+        list[str] | tuple[str, ...]
+    ] = []  # a job left as it is, or the key of its group (first member's place)
     for overrides in job_overrides:
         seed, others = _split_seed(overrides)
         repeated = seed in groups.get(others, {})
@@ -75,7 +78,9 @@ def trains_together(cfg: DictConfig) -> bool:
     return True
 
 
-def _population_jobs(others: list[str], jobs_by_seed: dict[int, list[str]], can_group: Callable[[list[str]], bool]) -> list[list[str]]:
+def _population_jobs(
+    others: list[str], jobs_by_seed: dict[int, list[str]], can_group: Callable[[list[str]], bool]
+) -> list[list[str]]:
     jobs = []
     for first, size in _consecutive_runs(sorted(jobs_by_seed)):
         population = [*others, f"seed={first}", f"population={size}"]

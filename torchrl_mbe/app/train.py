@@ -1,4 +1,5 @@
 """``train(cfg)``: checks the config, then runs the configured algorithm's loop."""
+
 from __future__ import annotations
 
 import logging
@@ -8,13 +9,13 @@ import torch
 from omegaconf import DictConfig
 
 from torchrl_mbe.app.config import check_config, register_configs
-from torchrl_mbe.app.observation import config_observation_spec, match_observation, named_on_command_line
 from torchrl_mbe.app.dqn import train_dqn
+from torchrl_mbe.app.observation import config_observation_spec, match_observation, named_on_command_line
 from torchrl_mbe.app.population import train_dqn_population
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.run import RunFinished
 
-__all__ = ["train", "LOOPS"]
+__all__ = ["LOOPS", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +44,11 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     observation_spec = config_observation_spec(cfg)
     changes = match_observation(cfg, observation_spec, named_on_command_line())
     if changes:
-        log.info("One-hot observation (%d cells): %s. Name any of these on the command line, or match_observation=false, to choose otherwise.", observation_spec.shape[-1], ", ".join(changes))
+        log.info(
+            "One-hot observation (%d cells): %s. Name any of these on the command line, or match_observation=false, to choose otherwise.",
+            observation_spec.shape[-1],
+            ", ".join(changes),
+        )
         check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes
@@ -57,7 +62,10 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         loop = train_dqn_population if cfg.population > 1 else LOOPS[cfg.algo.name]
         return loop(cfg, run_dir)
     except RunFinished as finished:
-        log.info("%s already finished its budget (raise train.episodes or train.max_frames to continue); nothing changed.", run_dir)
+        log.info(
+            "%s already finished its budget (raise train.episodes or train.max_frames to continue); nothing changed.",
+            run_dir,
+        )
         return finished.summary
 
 

@@ -6,6 +6,7 @@ random generator included (see :class:`~torchrl_mbe.envs.batched.BatchedTorchEnv
 :class:`~torchrl_mbe.envs.gym_batch.GymBatchEnv` steps a batch of gymnasium envs
 (LunarLander's, or any task with ``backend="gym"``).
 """
+
 from __future__ import annotations
 
 from torchrl_mbe.envs.acrobot import BatchedAcrobotEnv, acrobot_step
@@ -18,6 +19,8 @@ from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynam
 from torchrl_mbe.envs.registry import SUPPORTED_ENVS, TASKS, EnvBounds, Task, resolve_env_id, task_of
 
 __all__ = [
+    "SUPPORTED_ENVS",
+    "TASKS",
     "BatchedAcrobotEnv",
     "BatchedCartPoleEnv",
     "BatchedDeepSeaEnv",
@@ -27,8 +30,6 @@ __all__ = [
     "Episode",
     "GymBatchEnv",
     "MountainCarDynamics",
-    "SUPPORTED_ENVS",
-    "TASKS",
     "Task",
     "acrobot_step",
     "cartpole_step",

@@ -6,6 +6,7 @@
 * :class:`BatchedAcrobotEnv` steps N copies of Acrobot-v1 together as tensor
   operations (no gymnasium in the loop).
 """
+
 from __future__ import annotations
 
 import math
@@ -14,7 +15,7 @@ import torch
 
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
 
-__all__ = ["ACROBOT", "acrobot_step", "acrobot_observation", "acrobot_terminated", "BatchedAcrobotEnv"]
+__all__ = ["ACROBOT", "BatchedAcrobotEnv", "acrobot_observation", "acrobot_step", "acrobot_terminated"]
 
 ACROBOT = {
     "dt": 0.2,
@@ -39,7 +40,7 @@ def _derivatives(state: torch.Tensor, torque: torch.Tensor) -> torch.Tensor:
     m1, m2 = ACROBOT["link_mass_1"], ACROBOT["link_mass_2"]
     l1 = ACROBOT["link_length_1"]
     lc1, lc2 = ACROBOT["link_com_pos_1"], ACROBOT["link_com_pos_2"]
-    I1 = I2 = ACROBOT["link_moi"]  # noqa: N806 (gymnasium's names)
+    I1 = I2 = ACROBOT["link_moi"]
     g = ACROBOT["gravity"]
     pi = math.pi
     theta1, theta2, dtheta1, dtheta2 = state.unbind(-1)

@@ -9,6 +9,7 @@
   says how many actions it has, the bounds of its observation, and supplies three
   hooks: the start states, one physics step, and the observation read from a state.
 """
+
 from __future__ import annotations
 
 import numbers

@@ -5,6 +5,7 @@
 * :class:`BatchedCartPoleEnv` steps N copies of CartPole-v1 together as tensor
   operations (no gymnasium in the loop).
 """
+
 from __future__ import annotations
 
 import math
@@ -13,7 +14,7 @@ import torch
 
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
 
-__all__ = ["CARTPOLE", "cartpole_step", "cartpole_terminated", "BatchedCartPoleEnv"]
+__all__ = ["CARTPOLE", "BatchedCartPoleEnv", "cartpole_step", "cartpole_terminated"]
 
 CARTPOLE = {
     "gravity": 9.8,

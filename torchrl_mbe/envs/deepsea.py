@@ -8,6 +8,7 @@ score counts a size as solved at the first episode where fewer than 90% of the
 episodes so far were "bad" (left the diagonal), and as beating dithering if that
 happens before episode ``2**N + 100``.
 """
+
 from __future__ import annotations
 
 import numbers
@@ -69,7 +70,11 @@ class DeepSeaDynamics(ExactDynamics):
     def __init__(self, action_spec: TensorSpec, *, size: int = 10, mapping_seed: int = 42, **keys: NestedKey) -> None:
         super().__init__(action_spec, **keys)
         self.size = int(size)
-        self.register_buffer("action_mapping", deepsea_action_mapping(self.size, mapping_seed).to(self.action_spec.device), persistent=False)
+        self.register_buffer(
+            "action_mapping",
+            deepsea_action_mapping(self.size, mapping_seed).to(self.action_spec.device),
+            persistent=False,
+        )
 
     def step(self, observation: torch.Tensor, action_index: torch.Tensor) -> torch.Tensor:
         cell = observation.argmax(-1)
@@ -209,7 +214,9 @@ class BatchedDeepSeaEnv(BatchedTorchEnv):
         if not self.deterministic:
             chain_end = live & (self.row == last) & ((self.column == 0) | (self.column == last))
             reward += chain_end * torch.randn(self.batch_size, generator=self._generator).to(self.device)
-            moves_right = right & (torch.rand(self.batch_size, generator=self._generator).to(self.device) > 1 / self.size)
+            moves_right = right & (
+                torch.rand(self.batch_size, generator=self._generator).to(self.device) > 1 / self.size
+            )
         reward -= right * (self.unscaled_move_cost / self.size)
         move = moves_right.long() - (live & ~right).long()  # +1 right, -1 left, 0 when a right move fails
         self.column.copy_((self.column + move).clamp(0, last))

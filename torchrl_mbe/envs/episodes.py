@@ -1,4 +1,5 @@
 """Finished episodes in collected data, and what counts as reaching the goal."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -11,6 +12,7 @@ from torchrl.envs import EnvBase
 from torchrl_mbe.envs.registry import task_of
 
 __all__ = ["Episode", "finished_episodes", "first_episodes", "play_first_episodes", "reached_goal"]
+
 
 @dataclass(frozen=True)
 class Episode:

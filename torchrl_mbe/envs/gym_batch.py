@@ -1,9 +1,9 @@
 """A batch of gymnasium envs of any shape, stepped in one loop: the gym backend of :func:`~torchrl_mbe.make_env`."""
+
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-
 from typing import Any
 
 import numpy as np
@@ -57,7 +57,12 @@ class GymBatchEnv(EnvBase):
     """
 
     def __init__(
-        self, env_id: str, batch_size: int | Sequence[int], *, device: torch.device | str = "cpu", make_kwargs: dict[str, Any] | None = None
+        self,
+        env_id: str,
+        batch_size: int | Sequence[int],
+        *,
+        device: torch.device | str = "cpu",
+        make_kwargs: dict[str, Any] | None = None,
     ) -> None:
         batch_size = torch.Size([batch_size] if isinstance(batch_size, int) else batch_size)
         super().__init__(batch_size=batch_size, device=device)
@@ -88,7 +93,9 @@ class GymBatchEnv(EnvBase):
         rewards = np.zeros(len(self.envs))
         terminated, truncated = np.zeros(len(self.envs), dtype=bool), np.zeros(len(self.envs), dtype=bool)
         for index in self._masked(tensordict, "_step"):
-            self._observations[index], rewards[index], terminated[index], truncated[index], _ = self.envs[index].step(actions[index])
+            self._observations[index], rewards[index], terminated[index], truncated[index], _ = self.envs[index].step(
+                actions[index]
+            )
         reward = torch.as_tensor(rewards, dtype=torch.float32, device=self.device).view(*self.batch_size, 1)
         return self._output(terminated, truncated).set("reward", reward)
 
@@ -106,13 +113,22 @@ class GymBatchEnv(EnvBase):
     def _observation_tensor(self) -> torch.Tensor:
         """The copies' last observations as the spec encodes them (a ``Discrete`` space one-hot), ``(*batch_size, ...)``."""
         observations = np.asarray(self._observations)
-        return self.observation_spec["observation"].encode(observations.reshape(*self.batch_size, *observations.shape[1:]))
+        return self.observation_spec["observation"].encode(
+            observations.reshape(*self.batch_size, *observations.shape[1:])
+        )
 
     def _output(self, terminated: np.ndarray, truncated: np.ndarray) -> TensorDictBase:
         """A step's or reset's output: the observations and the ``(*batch_size, 1)`` flags, ``done`` = either."""
-        terminated, truncated = (torch.tensor(flags, device=self.device).view(*self.batch_size, 1) for flags in (terminated, truncated))  # copies
+        terminated, truncated = (
+            torch.tensor(flags, device=self.device).view(*self.batch_size, 1) for flags in (terminated, truncated)
+        )  # copies
         return TensorDict(
-            {"observation": self._observation_tensor(), "done": terminated | truncated, "terminated": terminated, "truncated": truncated},
+            {
+                "observation": self._observation_tensor(),
+                "done": terminated | truncated,
+                "terminated": terminated,
+                "truncated": truncated,
+            },
             batch_size=self.batch_size,
             device=self.device,
         )

@@ -1,11 +1,22 @@
 """``make_env``: discrete-action tasks (gymnasium's, or the registry's torch-only DeepSea) wrapped the way a DQN needs them."""
+
 from __future__ import annotations
 
 import math
 from typing import Any, Literal
 
 import torch
-from torchrl.envs import Compose, DoubleToFloat, DTypeCastTransform, EnvBase, GymWrapper, InitTracker, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs import (
+    Compose,
+    DoubleToFloat,
+    DTypeCastTransform,
+    EnvBase,
+    GymWrapper,
+    InitTracker,
+    RewardSum,
+    StepCounter,
+    TransformedEnv,
+)
 
 from torchrl_mbe.envs.gym_batch import GymBatchEnv
 from torchrl_mbe.envs.observations import make_gymnasium
@@ -128,7 +139,9 @@ def dqn_transforms(observation_dtype: torch.dtype = torch.float32) -> Compose:
     return Compose(to_float, StepCounter(), InitTracker(), RewardSum())
 
 
-def _gym_env(env_id: str, batch_shape: tuple[int, ...], device: torch.device | str, make_kwargs: dict[str, Any]) -> EnvBase:
+def _gym_env(
+    env_id: str, batch_shape: tuple[int, ...], device: torch.device | str, make_kwargs: dict[str, Any]
+) -> EnvBase:
     """TorchRL's ``GymWrapper`` of :func:`~torchrl_mbe.envs.observations.make_gymnasium`'s env for ``(1,)``, else a ``GymBatchEnv`` of ``batch_shape``."""
     if batch_shape == (1,):
         return GymWrapper(make_gymnasium(env_id, **make_kwargs), device=device)

@@ -10,6 +10,7 @@
   :class:`~torchrl_mbe.NoveltyPlanner` in place of a learned
   :class:`~torchrl_mbe.DynamicsModel`.
 """
+
 from __future__ import annotations
 
 import torch
@@ -17,7 +18,7 @@ import torch
 from torchrl_mbe.envs.batched import BatchedClassicControlEnv
 from torchrl_mbe.modules.dynamics import ExactDynamics
 
-__all__ = ["MOUNTAINCAR", "mountaincar_step", "MountainCarDynamics", "BatchedMountainCarEnv"]
+__all__ = ["MOUNTAINCAR", "BatchedMountainCarEnv", "MountainCarDynamics", "mountaincar_step"]
 
 MOUNTAINCAR = {
     "min_position": -1.2,

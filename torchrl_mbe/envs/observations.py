@@ -12,11 +12,11 @@ one line, before any work: a non-discrete action space, variable-size spaces
 :data:`MAX_OBSERVATION_SIZE` numbers (pixels: the models here are MLPs on flat
 vectors, and a full-covariance window over ``d`` numbers costs ``d**2`` memory).
 """
+
 from __future__ import annotations
 
 import importlib
 import logging
-import math
 from typing import Any
 
 import gymnasium as gym
@@ -92,7 +92,11 @@ def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
         ValueError: Pendulum-v1 has a Box(-2.0, 2.0, (1,), float32) action space; model-based exploration plans over one discrete action set (a Discrete action space).
     """
     try:
-        env = gym.make(env_id, **({"max_episode_steps": MAX_EPISODE_STEPS} if gym.spec(env_id).max_episode_steps is None else {}), **make_kwargs)
+        env = gym.make(
+            env_id,
+            **({"max_episode_steps": MAX_EPISODE_STEPS} if gym.spec(env_id).max_episode_steps is None else {}),
+            **make_kwargs,
+        )
     except TypeError as error:
         raise ValueError(f"{env_id} does not take the keyword arguments {make_kwargs} (gym.make: {error}).") from None
     except gym.error.DependencyNotInstalled as error:
@@ -113,17 +117,25 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
     if isinstance(space, spaces.Dict):
         kept = [key for key, entry in space.spaces.items() if _flattenable(entry)]
         if kept and len(kept) < len(space.spaces):
-            log.info("%s: the observation entries %s are dropped (not a fixed number of numbers)", env_id, sorted(set(space.spaces) - set(kept)))
+            log.info(
+                "%s: the observation entries %s are dropped (not a fixed number of numbers)",
+                env_id,
+                sorted(set(space.spaces) - set(kept)),
+            )
             env = FilterObservation(env, kept)
             space = env.observation_space
     if not _flattenable(space) or not spaces.flatdim(space):
-        raise ValueError(f"{env_id} has a {space} observation; accepted: Box, Discrete, MultiDiscrete, MultiBinary, and Tuple or Dict of these.")
+        raise ValueError(
+            f"{env_id} has a {space} observation; accepted: Box, Discrete, MultiDiscrete, MultiBinary, and Tuple or Dict of these."
+        )
     if spaces.flatdim(space) > MAX_OBSERVATION_SIZE:
         raise ValueError(
             f"{env_id} has an observation of {spaces.flatdim(space)} numbers; at most {MAX_OBSERVATION_SIZE} are accepted (the models are "
             "MLPs on flat vectors: for pixels, use a smaller or symbolic observation, such as MiniGrid's default 7x7x3 codes)."
         )
-    if isinstance(space, spaces.Discrete) or (isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.floating) and len(space.shape) == 1):
+    if isinstance(space, spaces.Discrete) or (
+        isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.floating) and len(space.shape) == 1
+    ):
         return env  # GymWrapper reads these as they are (a Discrete one-hot)
     return DtypeObservation(FlattenObservation(env), np.float32)
 

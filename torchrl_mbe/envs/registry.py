@@ -7,6 +7,7 @@ reaching its goal means, the box its coverage is measured in and, if there is
 one, its batched torch implementation. Adding an environment means
 adding one entry to :data:`TASKS` (and a ``conf/env/<alias>.yaml`` for the app).
 """
+
 from __future__ import annotations
 
 import math
@@ -24,7 +25,17 @@ from torchrl_mbe.envs.deepsea import BatchedDeepSeaEnv, DeepSeaDynamics
 from torchrl_mbe.envs.mountaincar import BatchedMountainCarEnv, MountainCarDynamics
 from torchrl_mbe.envs.observations import check_gymnasium, import_suite
 
-__all__ = ["EnvBounds", "Task", "TASKS", "SUPPORTED_ENVS", "SUITE_TASKS", "SolvedRule", "solved_rule", "task_of", "resolve_env_id"]
+__all__ = [
+    "SUITE_TASKS",
+    "SUPPORTED_ENVS",
+    "TASKS",
+    "EnvBounds",
+    "SolvedRule",
+    "Task",
+    "resolve_env_id",
+    "solved_rule",
+    "task_of",
+]
 
 GoalRule = Literal["terminated", "truncated", "landed"]
 
@@ -242,7 +253,9 @@ def solved_rule(env_id: str) -> SolvedRule | None:
     """
     task = task_of(env_id)
     if task is not None:
-        return SolvedRule("eval_success_rate" if task.solved_by == "success" else "eval_return_mean", task.solved_threshold)
+        return SolvedRule(
+            "eval_success_rate" if task.solved_by == "success" else "eval_return_mean", task.solved_threshold
+        )
     threshold = gym.spec(env_id).reward_threshold
     return SolvedRule("eval_return_mean", float(threshold)) if threshold is not None else None
 
@@ -276,6 +289,8 @@ def resolve_env_id(name: str, **make_kwargs: Any) -> str:
     if task is not None and not task.gymnasium:
         return env_id
     if env_id not in gym.registry:
-        raise ValueError(f"Unknown environment {name!r}: expected a gymnasium id (module:EnvId for a third-party suite) or one of {_supported_list()}.")
+        raise ValueError(
+            f"Unknown environment {name!r}: expected a gymnasium id (module:EnvId for a third-party suite) or one of {_supported_list()}."
+        )
     check_gymnasium(env_id, **make_kwargs)
     return env_id

@@ -1,4 +1,5 @@
 """TorchRL modules: novelty scorers, the dynamics model, the planner and the exploration policies."""
+
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy, check_eps_schedule
 from torchrl_mbe.modules.networks import init_linear_layers, make_per_action_mlp
@@ -18,8 +19,8 @@ __all__ = [
     "DiagonalGaussianDensity",
     "DynamicsModel",
     "GaussianKernelNovelty",
-    "KernelDensityNovelty",
     "KNearestNovelty",
+    "KernelDensityNovelty",
     "ModelBasedExplorationPolicy",
     "NoveltyPlanner",
     "RollingGaussianDensity",

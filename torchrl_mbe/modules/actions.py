@@ -1,4 +1,5 @@
 """Discrete action specs: what the planner, the dynamics model and the oracle read from one."""
+
 from __future__ import annotations
 
 import torch
@@ -28,12 +29,13 @@ def discrete_action_spec(spec: TensorSpec, action_key: NestedKey = "action") -> 
     """
     if isinstance(spec, Composite):
         if action_key not in spec.keys(include_nested=True):
-            raise ValueError(f"Expected a Composite spec with an entry {action_key!r}, got one with keys {list(spec.keys(True, True))}.")
+            raise ValueError(
+                f"Expected a Composite spec with an entry {action_key!r}, got one with keys {list(spec.keys(True, True))}."
+            )
         spec = spec[action_key]
     if not isinstance(spec, (OneHot, Categorical)):
         raise TypeError(
-            "Model-based exploration needs a discrete action spec (OneHot or Categorical), "
-            f"got {type(spec).__name__}."
+            f"Model-based exploration needs a discrete action spec (OneHot or Categorical), got {type(spec).__name__}."
         )
     return spec
 

@@ -1,4 +1,5 @@
 """Dynamics modules: ``D(s, a)`` predicts the next observation, learned (:class:`DynamicsModel`) or exact (:class:`ExactDynamics`)."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -15,7 +16,14 @@ from torchrl_mbe.modules.networks import init_linear_layers
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.modules.population import make_members_mlp
 
-__all__ = ["DynamicsModel", "ExactDynamics", "action_indices", "check_output", "num_discrete_actions", "one_hot_actions"]  # the action helpers live in .actions
+__all__ = [
+    "DynamicsModel",
+    "ExactDynamics",
+    "action_indices",
+    "check_output",
+    "num_discrete_actions",
+    "one_hot_actions",
+]  # the action helpers live in .actions
 
 OUTPUTS = ("delta", "categorical")
 
@@ -25,7 +33,9 @@ def check_output(output: str, normalize: bool) -> None:
     if output not in OUTPUTS:
         raise ValueError(f"output must be one of {OUTPUTS}, got {output!r}.")
     if output == "categorical" and normalize:
-        raise ValueError("output='categorical' predicts probabilities over the observation's entries in raw units; pass normalize=False.")
+        raise ValueError(
+            "output='categorical' predicts probabilities over the observation's entries in raw units; pass normalize=False."
+        )
 
 
 def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
@@ -42,7 +52,9 @@ def _observation_size(observation: int | TensorSpec, observation_key: NestedKey 
         observation = observation[observation_key]
     if isinstance(observation, TensorSpec):
         if not observation.shape:
-            raise ValueError(f"Expected a flat observation spec with a feature dimension, got shape {tuple(observation.shape)}.")
+            raise ValueError(
+                f"Expected a flat observation spec with a feature dimension, got shape {tuple(observation.shape)}."
+            )
         return int(observation.shape[-1])
     return int(observation)
 
@@ -212,7 +224,11 @@ class DynamicsModel(TensorDictModuleBase):
         self.prior_scale = prior_scale
         self.net = self._make_net(in_features, list(num_cells), activation_class, device, self._net_outputs())
         self.prior = (
-            self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(False) if prior_scale > 0 else None
+            self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(
+                False
+            )
+            if prior_scale > 0
+            else None
         )
         statistics_shape = observation_size if num_members is None else (num_members, observation_size)
         self.observation_norm = Standardize(statistics_shape, device=device)
@@ -226,11 +242,21 @@ class DynamicsModel(TensorDictModuleBase):
             return self.observation_size
         return self.observation_size + 1 + (self.observation_size if self.prior_scale > 0 else 0)
 
-    def _make_net(self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device, out_features: int) -> nn.Module:
+    def _make_net(
+        self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device, out_features: int
+    ) -> nn.Module:
         """The MLP (Glorot-uniform weights, zero biases), or the members' ``MultiAgentMLP``."""
         if self.num_members is not None:
-            return make_members_mlp(in_features, out_features, num_cells, self.num_members, activation_class=activation_class, device=device)
-        mlp = MLP(in_features=in_features, out_features=out_features, num_cells=num_cells, activation_class=activation_class, device=device)
+            return make_members_mlp(
+                in_features, out_features, num_cells, self.num_members, activation_class=activation_class, device=device
+            )
+        mlp = MLP(
+            in_features=in_features,
+            out_features=out_features,
+            num_cells=num_cells,
+            activation_class=activation_class,
+            device=device,
+        )
         return init_linear_layers(mlp)
 
     @property
@@ -242,7 +268,9 @@ class DynamicsModel(TensorDictModuleBase):
         normalized = self.observation_norm(observation)
         return torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
 
-    def categorical_parts(self, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    def categorical_parts(
+        self, observation: torch.Tensor, action: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A categorical model's logits (one per feature, the last for zeros) and its offset (the trained offset plus the prior; ``None`` without a prior)."""
         inputs = self._inputs(observation, action)
         output = self.net(inputs)

@@ -1,4 +1,5 @@
 """Exploration policies: TorchRL's e-greedy with a choice of schedule, and its model-based variant."""
+
 from __future__ import annotations
 
 from typing import Literal
@@ -209,7 +210,9 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
 
     def _random_action(self, tensordict: TensorDictBase) -> torch.Tensor:
         planner = self.planner
-        return planner.actions_at(torch.randint(planner.num_actions, tensordict.batch_size, device=planner.candidate_actions.device))
+        return planner.actions_at(
+            torch.randint(planner.num_actions, tensordict.batch_size, device=planner.candidate_actions.device)
+        )
 
 
 def _complete_output_spec(actor: TensorDictModuleBase, planner: NoveltyPlanner, action_key: NestedKey) -> Composite:
@@ -250,4 +253,6 @@ def check_eps_schedule(eps_init: float, eps_end: float, annealing_num_steps: int
     if schedule not in ("linear", "exponential"):
         raise ValueError(f"schedule must be 'linear' or 'exponential', got {schedule!r}.")
     if schedule == "exponential" and eps_end <= 0.0:
-        raise ValueError(f"The exponential schedule needs eps_end > 0 (it decays multiplicatively), got eps_end={eps_end}.")
+        raise ValueError(
+            f"The exponential schedule needs eps_end > 0 (it decays multiplicatively), got eps_end={eps_end}."
+        )

@@ -1,4 +1,5 @@
 """Small network helpers shared by the Q-network, the policy network and the dynamics model."""
+
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence

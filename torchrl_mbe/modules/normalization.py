@@ -1,4 +1,5 @@
 """Feature standardization whose statistics are module buffers."""
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -57,7 +58,9 @@ class Standardize(nn.Module):
         touch) keeps scale 1, as in scikit-learn's ``StandardScaler``: dividing by
         a floor would turn its first change into a value of millions.
         """
-        samples = samples.reshape(-1, *self.loc.shape).to(self.loc.dtype)  # integer samples too (a one-hot Discrete observation)
+        samples = samples.reshape(-1, *self.loc.shape).to(
+            self.loc.dtype
+        )  # integer samples too (a one-hot Discrete observation)
         if samples.shape[0] < 2:
             raise ValueError("Standardize.fit needs at least two samples.")
         std = samples.std(0)

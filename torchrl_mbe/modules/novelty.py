@@ -14,6 +14,7 @@ Collector's ``compile_policy``): compiled, it scores against the whole window
 with its empty slots masked out, since no shape may depend on how many states
 are stored; eagerly it reads exactly the stored states.
 """
+
 from __future__ import annotations
 
 import math
@@ -23,12 +24,12 @@ import torch
 from torch import nn
 
 __all__ = [
-    "RollingWindowNovelty",
-    "RollingGaussianDensity",
-    "GaussianKernelNovelty",
     "DiagonalGaussianDensity",
+    "GaussianKernelNovelty",
     "KNearestNovelty",
     "KernelDensityNovelty",
+    "RollingGaussianDensity",
+    "RollingWindowNovelty",
 ]
 
 
@@ -75,7 +76,9 @@ class RollingWindowNovelty(nn.Module):
         if num_features is not None and int(num_features) < 1:
             raise ValueError(f"num_features must be a positive integer or None, got {num_features}.")
         if window is None and not self.counts_every_state:
-            raise ValueError(f"window=None: {type(self).__name__} scores against stored states; give it an integer >= 2.")
+            raise ValueError(
+                f"window=None: {type(self).__name__} scores against stored states; give it an integer >= 2."
+            )
         if window is not None and int(window) < 2:
             raise ValueError(
                 f"window must be an integer >= 2 (the paper uses 50), got {window}: "
@@ -271,9 +274,13 @@ class RollingGaussianDensity(RollingWindowNovelty):
         self.register_buffer("loc", torch.zeros(shape, **kwargs))
         if self._fits_low_rank():
             self.register_buffer("std", torch.ones(shape, **kwargs))
-            self.register_buffer("standardized_window", torch.zeros(*self.batch_shape, self.window, num_features, **kwargs))
+            self.register_buffer(
+                "standardized_window", torch.zeros(*self.batch_shape, self.window, num_features, **kwargs)
+            )
             self.register_buffer("eigenvalues", torch.ones(*self.batch_shape, self.window, **kwargs))
-            self.register_buffer("gram_eigenvectors", torch.zeros(*self.batch_shape, self.window, self.window, **kwargs))
+            self.register_buffer(
+                "gram_eigenvectors", torch.zeros(*self.batch_shape, self.window, self.window, **kwargs)
+            )
         else:
             self.register_buffer("whitening", torch.zeros(*shape, num_features, **kwargs))
         self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
@@ -513,7 +520,9 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
 
     counts_every_state = True
 
-    def __init__(self, num_features: int | None = None, window: int | None = 50, *, added_variance: float = 0.0, **kwargs) -> None:
+    def __init__(
+        self, num_features: int | None = None, window: int | None = 50, *, added_variance: float = 0.0, **kwargs
+    ) -> None:
         if added_variance < 0:
             raise ValueError(f"added_variance must be >= 0, got {added_variance}.")
         super().__init__(num_features, window, **kwargs)
@@ -592,7 +601,9 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
 
     def _sums_from_saved_window(self, state_dict: dict, prefix: str) -> None:
         state_dict.pop(prefix + "whitening")
-        stored = state_dict[prefix + "states"][..., : min(int(state_dict[prefix + "num_seen"]), self.window), :].to(torch.float64)
+        stored = state_dict[prefix + "states"][..., : min(int(state_dict[prefix + "num_seen"]), self.window), :].to(
+            torch.float64
+        )
         state_dict[prefix + "state_sum"] = stored.sum(-2)
         state_dict[prefix + "state_square_sum"] = stored.square().sum(-2)
         state_dict[prefix + "inverse_std"] = torch.ones_like(stored.sum(-2))

@@ -1,4 +1,5 @@
 """One-step (or N-step) planning towards the rarest predicted state."""
+
 from __future__ import annotations
 
 import torch

@@ -33,9 +33,11 @@ members that never exchange data, gradients or statistics:
 TorchRL's fused Adam and target updaters (``HardUpdate``, ``SoftUpdate``) are
 elementwise, hence per member already.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from typing import ClassVar
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -102,7 +104,9 @@ def make_population_q_actor(
         >>> actor.module[0].params["0", "weight"].shape  # [M, hidden, features]
         torch.Size([4, 16, 2])
     """
-    network = make_members_mlp(observation_size, action_spec.space.n, num_cells, num_members, noise_std=noise_std, device=device)
+    network = make_members_mlp(
+        observation_size, action_spec.space.n, num_cells, num_members, noise_std=noise_std, device=device
+    )
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
@@ -192,7 +196,9 @@ def reset_members_noise(module: nn.Module) -> None:
         if "weight_epsilon" not in layer.keys():
             continue
         members, out_features, in_features = layer["weight_epsilon"].shape
-        noise_in, noise_out = (_factorized_noise(members, size, layer["weight_epsilon"]) for size in (in_features, out_features))
+        noise_in, noise_out = (
+            _factorized_noise(members, size, layer["weight_epsilon"]) for size in (in_features, out_features)
+        )
         layer["weight_epsilon"].copy_(noise_out[:, :, None] * noise_in[:, None, :])
         layer["bias_epsilon"].copy_(noise_out)
 
@@ -257,7 +263,7 @@ class PopulationDQNLoss(DQNLoss):
         (torch.Size([]), torch.Size([4]), torch.Size([8, 4, 1]))
     """
 
-    out_keys = ["loss", "member_loss"]
+    out_keys: ClassVar[list[str]] = ["loss", "member_loss"]
 
     def __init__(self, value_network: QValueActor, **kwargs) -> None:
         if kwargs.pop("reduction", "none") != "none":
@@ -329,9 +335,11 @@ class PopulationRNDLoss(RNDLoss):
         (torch.Size([3]), True)
     """
 
-    out_keys = ["loss_predictor", "member_loss"]
+    out_keys: ClassVar[list[str]] = ["loss_predictor", "member_loss"]
 
-    def __init__(self, predictor_network: nn.Module, target_network: nn.Module, *, update_fraction: float = 0.25, **kwargs) -> None:
+    def __init__(
+        self, predictor_network: nn.Module, target_network: nn.Module, *, update_fraction: float = 0.25, **kwargs
+    ) -> None:
         super().__init__(predictor_network, target_network, reduction="none", update_fraction=1.0, **kwargs)
         if not 0.0 < update_fraction <= 1.0:
             raise ValueError(f"update_fraction must be in (0, 1], got {update_fraction}.")
@@ -345,9 +353,7 @@ class PopulationRNDLoss(RNDLoss):
         return TensorDict(loss_predictor=member_loss.sum(), member_loss=member_loss)
 
 
-def clip_grad_norm_per_member_(
-    parameters: Iterable[torch.Tensor], max_norm: float, num_members: int
-) -> torch.Tensor:
+def clip_grad_norm_per_member_(parameters: Iterable[torch.Tensor], max_norm: float, num_members: int) -> torch.Tensor:
     """Clips each member's gradient norm to ``max_norm``, as ``torch.nn.utils.clip_grad_norm_`` clips one network's.
 
     Member ``m``'s norm is taken over its slice ``p.grad[m]`` of every parameter
@@ -490,7 +496,11 @@ class PopulationReplayBuffer:
 
     def load_state_dict(self, state: dict) -> None:
         storage = state["storage"]
-        self._storage = None if storage is None else TensorDict(storage, batch_size=[self.capacity, self.num_members], device=self.device)
+        self._storage = (
+            None
+            if storage is None
+            else TensorDict(storage, batch_size=[self.capacity, self.num_members], device=self.device)
+        )
         self._cursor, self._size = state["cursor"], state["size"]
 
 

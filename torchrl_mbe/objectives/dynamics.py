@@ -1,7 +1,9 @@
 """Losses: the dynamics network's regression loss as a TorchRL ``LossModule``."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import torch
 from tensordict import NestedKey, TensorDict, TensorDictBase, unravel_key
@@ -80,7 +82,7 @@ class DynamicsLoss(LossModule):
         next_observation: NestedKey = ("next", "observation")
 
     default_keys = _AcceptedKeys
-    out_keys = ["loss_dynamics", "mse_dynamics"]
+    out_keys: ClassVar[list[str]] = ["loss_dynamics", "mse_dynamics"]
 
     def __init__(self, dynamics: TensorDictModuleBase, *, normalize: bool = True) -> None:
         super().__init__()
@@ -110,10 +112,14 @@ class DynamicsLoss(LossModule):
         next_observation = tensordict.get(keys.next_observation)
         if torch.is_grad_enabled() and getattr(self.dynamics, "normalization_fitted", True) is False:
             next_key = unravel_key(("next", observation_key))
-            self.dynamics.fit_normalization(inputs.copy().set(next_key, next_observation), next_observation_key=next_key)
+            self.dynamics.fit_normalization(
+                inputs.copy().set(next_key, next_observation), next_observation_key=next_key
+            )
         num_members = getattr(self.dynamics, "num_members", None)
         if getattr(self.dynamics, "output", "delta") == "categorical":
-            return self._categorical_losses(inputs.get(observation_key), inputs.get(action_key), next_observation, num_members)
+            return self._categorical_losses(
+                inputs.get(observation_key), inputs.get(action_key), next_observation, num_members
+            )
         prediction = self.dynamics(inputs).get(self.dynamics.out_keys[0])
         error = prediction - next_observation
         scale = getattr(self.dynamics, "delta_scale", None) if self.normalize else None
@@ -126,14 +132,19 @@ class DynamicsLoss(LossModule):
             batch_size=[],
         )
 
-    def _categorical_losses(self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor, num_members: int | None) -> TensorDict:
+    def _categorical_losses(
+        self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor, num_members: int | None
+    ) -> TensorDict:
         logits, offset = self.dynamics.categorical_parts(observation, action)
         zeros = 1 - next_observation.sum(-1, keepdim=True)  # 1 for an observation of zeros, 0 for a one-hot one
         loss = -(torch.cat([next_observation, zeros], -1) * logits.log_softmax(-1)).sum(-1, keepdim=True)
         if offset is not None:
             loss = loss + offset.square().sum(-1, keepdim=True)
         error = self.dynamics.categorical_prediction(logits, offset).detach() - next_observation
-        return TensorDict({"loss_dynamics": _mean(loss, num_members), "mse_dynamics": _mean(error.square(), num_members)}, batch_size=[])
+        return TensorDict(
+            {"loss_dynamics": _mean(loss, num_members), "mse_dynamics": _mean(error.square(), num_members)},
+            batch_size=[],
+        )
 
 
 def _mean(losses: torch.Tensor, num_members: int | None) -> torch.Tensor:

@@ -6,6 +6,7 @@ The output directory gets ``results.md`` and, per env, ``frames_to_solved_<env>.
 ``greedy_evaluations_<env>.png``, ``learning_curves_<env>.png`` and ``coverage_<env>.png``;
 with DeepSea at two or more sizes, also ``scaling_DeepSea.png`` (episodes to solved against N).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -30,8 +31,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="torchrl-mbe-report", description=__doc__.splitlines()[0])
     parser.add_argument("runs_dir", type=Path, metavar="RUNS_DIR", help="holds the run directories, at any depth")
     parser.add_argument("--out", type=Path, default=None, help="output directory (default: RUNS_DIR/report)")
-    parser.add_argument("--window", type=_positive_int, default=100, help="running-average window (default: 100 episodes)")
-    parser.add_argument("--bins", type=_positive_int, default=20, help="coverage grid cells per dimension (default: 20)")
+    parser.add_argument(
+        "--window", type=_positive_int, default=100, help="running-average window (default: 100 episodes)"
+    )
+    parser.add_argument(
+        "--bins", type=_positive_int, default=20, help="coverage grid cells per dimension (default: 20)"
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:

@@ -1,4 +1,5 @@
 """The report's figures: learning curves (the paper's Figures 2 and 4), visited states (Figures 1 and 3) and DeepSea's scaling."""
+
 from __future__ import annotations
 
 import logging
@@ -14,7 +15,16 @@ from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import DEEPSEA, Run, deepsea_growth, solved_count, solved_threshold
 
-__all__ = ["plot_learning_curves", "plot_greedy_evaluations", "plot_frames_to_solved", "plot_coverage", "plot_deepsea_scaling", "mean_curve", "last_finished_episode", "save_figure"]
+__all__ = [
+    "last_finished_episode",
+    "mean_curve",
+    "plot_coverage",
+    "plot_deepsea_scaling",
+    "plot_frames_to_solved",
+    "plot_greedy_evaluations",
+    "plot_learning_curves",
+    "save_figure",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -52,12 +62,12 @@ def plot_learning_curves(
     if not plotted:
         return None
     labels = ("training episode", f"return, running average of last {window} episodes")
-    return _finish_returns_plot(fig, groups, labels, f"{env}: learning curves (line: mean over seeds, band: min to max)", path)
+    return _finish_returns_plot(
+        fig, groups, labels, f"{env}: learning curves (line: mean over seeds, band: min to max)", path
+    )
 
 
-def plot_greedy_evaluations(
-    env: str, groups: dict[str, list[Run]], colors: dict[str, str], path: Path
-) -> Path | None:
+def plot_greedy_evaluations(env: str, groups: dict[str, list[Run]], colors: dict[str, str], path: Path) -> Path | None:
     """Every run's greedy evaluations against frames, one colour per method; ``None`` if no run evaluated.
 
     One line per seed (runs that stop when solved end early); the last point of a
@@ -131,7 +141,9 @@ def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -
             ax.scatter([size * shift] * unsolved, heights, transform=top_edge, color=color, marker="x", s=30, zorder=4)
         xs, ys = zip(*medians) if medians else ((), ())
         growth = deepsea_growth(by_size)
-        ax.plot(xs, ys, color=color, marker="o", label=method if growth is None else f"{method}: ~N^{growth.exponent:.1f}")
+        ax.plot(
+            xs, ys, color=color, marker="o", label=method if growth is None else f"{method}: ~N^{growth.exponent:.1f}"
+        )
     dense = np.geomspace(sizes[0], sizes[-1], 100)  # 2^N bends on log-log axes
     ax.plot(dense, 2.0**dense, color="0.3", linestyle="--", linewidth=1, label="dithering: 2^N")
     ax.scatter([], [], color="0.3", marker="x", label="unsolved: one cross per seed, at the top")
@@ -148,7 +160,9 @@ def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -
     return save_figure(fig, path)
 
 
-def _finish_returns_plot(fig: Figure, groups: dict[str, list[Run]], axis_labels: tuple[str, str], title: str, path: Path) -> Path:
+def _finish_returns_plot(
+    fig: Figure, groups: dict[str, list[Run]], axis_labels: tuple[str, str], title: str, path: Path
+) -> Path:
     """The solved threshold as a dashed line, axis labels, title, grid and legend; saves the figure."""
     ax = fig.axes[0]
     threshold = solved_threshold(groups)
@@ -201,8 +215,14 @@ def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: Env
     for ax, (method, (run, coverage, num_seeds)) in zip(axes, best.items()):
         states = run.visited_states
         scatter = ax.scatter(
-            states[:, x_dim], states[:, y_dim], c=run.visited_episodes, cmap="viridis", norm=norm,
-            s=2, linewidths=0, rasterized=True,
+            states[:, x_dim],
+            states[:, y_dim],
+            c=run.visited_episodes,
+            cmap="viridis",
+            norm=norm,
+            s=2,
+            linewidths=0,
+            rasterized=True,
         )
         ax.set_title(f"{method}\ncoverage {coverage:.1%} (seed {run.seed}, best of {num_seeds})", fontsize=10)
         ax.set_xlabel(bounds.labels[x_dim])
@@ -215,5 +235,3 @@ def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: Env
     fig.colorbar(scatter, ax=list(axes), label="episode", ticks=MaxNLocator(integer=True))
     fig.suptitle(f"{env}: visited states ({bins}x{bins} grid coverage)")
     return save_figure(fig, path)
-
-

@@ -21,6 +21,7 @@ Coverage, two measures:
   Boolean dimensions (LunarLander's leg contacts) are left out: they can fill at
   most 2 of ``bins`` rows and would only drag every pair down.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -35,12 +36,12 @@ from torchrl_mbe.envs.registry import EnvBounds
 
 __all__ = [
     "EpisodeStats",
+    "episode_stats",
     "grid_coverage",
+    "loglog_slope",
+    "max_position",
     "pairwise_coverage",
     "running_average",
-    "episode_stats",
-    "max_position",
-    "loglog_slope",
 ]
 
 

@@ -25,6 +25,7 @@ several sizes (envs ``DeepSea-10``, ``DeepSea-20``, ...) are also grouped by met
 and size (:func:`deepsea_scaling`) for ``scaling_DeepSea.png``. A malformed file
 stops the report with a message naming it: silently dropping a run would hide data.
 """
+
 from __future__ import annotations
 
 import csv
@@ -41,14 +42,28 @@ from torchrl_mbe.report.metrics import EpisodeStats, episode_stats, grid_coverag
 from torchrl_mbe.rundir import EXPLORATION_PREFIX, SUMMARY, SUMMARY_FIELDS, VISITED_EPISODES, VISITED_STATES, table_file
 
 __all__ = [
-    "RunFormatError", "Run", "load_runs", "group_runs", "env_bounds", "solved_threshold", "plane_coverage", "solved_count",
-    "file_stem", "method_key", "DEEPSEA", "deepsea_size", "deepsea_scaling", "Growth", "deepsea_growth",
+    "DEEPSEA",
+    "Growth",
+    "Run",
+    "RunFormatError",
+    "deepsea_growth",
+    "deepsea_scaling",
+    "deepsea_size",
+    "env_bounds",
+    "file_stem",
+    "group_runs",
+    "load_runs",
+    "method_key",
+    "plane_coverage",
+    "solved_count",
+    "solved_threshold",
 ]
 
 logger = logging.getLogger(__name__)
 
 DEEPSEA = TASKS["deepsea"].env_id
 """DeepSea's env id; a run of size N names its env ``DeepSea-N``."""
+
 
 class RunFormatError(ValueError):
     """A runs directory that cannot be reported on: missing, without runs, or with a malformed file."""
@@ -71,9 +86,13 @@ class Run:
     tag: str | None = None  # the experiment the run belongs to (summaries of 0.1.0 lack both)
     config_id: str | None = None
     summary: dict = field(default_factory=dict)  # summary.json as written (see torchrl_mbe.rundir.SUMMARY_FIELDS)
-    eval_frames: np.ndarray = field(default_factory=lambda: np.array([]))  # evaluations.csv: when each greedy evaluation ran
+    eval_frames: np.ndarray = field(
+        default_factory=lambda: np.array([])
+    )  # evaluations.csv: when each greedy evaluation ran
     eval_returns: np.ndarray = field(default_factory=lambda: np.array([]))  # and its mean return
-    episode_frames: np.ndarray = field(default_factory=lambda: np.array([]))  # episodes.csv: frames at each episode's end
+    episode_frames: np.ndarray = field(
+        default_factory=lambda: np.array([])
+    )  # episodes.csv: frames at each episode's end
 
     @property
     def is_exploration(self) -> bool:
@@ -89,7 +108,12 @@ class Run:
     def stats(self, window: int) -> EpisodeStats:
         """:func:`~torchrl_mbe.report.metrics.episode_stats` of the run's episode table (the goal's running rate for a task solved by success)."""
         solved_by_success = self.summary.get("solved_by") == "success"
-        return episode_stats(self.reached_goal.astype(float) if solved_by_success else self.returns, self.reached_goal, self.solved_threshold, window=window)
+        return episode_stats(
+            self.reached_goal.astype(float) if solved_by_success else self.returns,
+            self.reached_goal,
+            self.solved_threshold,
+            window=window,
+        )
 
 
 def _read_summary(path: Path) -> dict:
@@ -241,12 +265,8 @@ def load_runs(runs_dir: str | Path) -> list[Run]:
     return runs
 
 
-
-
 def file_stem(env: str) -> str:
     return env.replace("/", "_")
-
-
 
 
 def method_key(method: str) -> tuple[int, str]:
@@ -311,7 +331,10 @@ def deepsea_scaling(runs: Sequence[Run]) -> dict[str, dict[int, list[Run]]]:
     scaling: dict[str, dict[int, list[Run]]] = {}
     for size in sorted(by_size):
         groups = group_runs(by_size[size])
-        series = {label: group[0].method if len(tags[group[0].method]) == 1 else f"{group[0].method} [{group[0].tag}]" for label, group in groups.items()}
+        series = {
+            label: group[0].method if len(tags[group[0].method]) == 1 else f"{group[0].method} [{group[0].tag}]"
+            for label, group in groups.items()
+        }
         for label, group in groups.items():
             one_config = list(series.values()).count(series[label]) == 1
             scaling.setdefault(series[label] if one_config else label, {})[size] = group
@@ -326,7 +349,9 @@ class Growth:
     sizes: tuple[int, ...]
 
 
-def deepsea_growth(by_size: dict[int, list[Run]], episode_of: Callable[[Run], int | None] = lambda run: run.episodes_to_solved) -> Growth | None:
+def deepsea_growth(
+    by_size: dict[int, list[Run]], episode_of: Callable[[Run], int | None] = lambda run: run.episodes_to_solved
+) -> Growth | None:
     """The log-log slope against N of the median of ``episode_of`` (episodes to solved by default) over the seeds that got there.
 
     Fitted over the sizes where at least half of the seeds got there, so that a size that one
@@ -368,5 +393,3 @@ def plane_coverage(run: Run, bounds: EnvBounds, bins: int, *, first: int | None 
     """Grid coverage of the run's visited states (its ``first`` ones only, if given) on the env's plane."""
     states = run.visited_states[:first]
     return grid_coverage(states, bounds.plane_low, bounds.plane_high, bins, dims=bounds.plane)
-
-

@@ -1,4 +1,5 @@
 """The report's tables and ``results.md``: :func:`write_report`."""
+
 from __future__ import annotations
 
 import logging
@@ -9,11 +10,25 @@ import numpy as np
 
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.figures import (
-    plot_coverage, plot_deepsea_scaling, plot_frames_to_solved, plot_greedy_evaluations, plot_learning_curves,
+    plot_coverage,
+    plot_deepsea_scaling,
+    plot_frames_to_solved,
+    plot_greedy_evaluations,
+    plot_learning_curves,
 )
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
 from torchrl_mbe.report.runs import (
-    DEEPSEA, Growth, Run, deepsea_growth, deepsea_scaling, env_bounds, file_stem, group_runs, plane_coverage, solved_count, solved_threshold,
+    DEEPSEA,
+    Growth,
+    Run,
+    deepsea_growth,
+    deepsea_scaling,
+    env_bounds,
+    file_stem,
+    group_runs,
+    plane_coverage,
+    solved_count,
+    solved_threshold,
 )
 
 __all__ = ["write_report"]
@@ -69,7 +84,6 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
 
-
 def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bins: int, window: int) -> list[str]:
     """One row per method: how often and how fast it solved, and what its exploration cost and covered.
 
@@ -97,8 +111,14 @@ def _summary_section(groups: dict[str, list[Run]], bounds: EnvBounds | None, bin
             ]
         )
     header = [
-        "method", "solved", "frames to solved (median)", "seconds to solved (median)", "first success episode (median)",
-        "final greedy eval (mean)", coverage_header, "frames/s (mean)",
+        "method",
+        "solved",
+        "frames to solved (median)",
+        "seconds to solved (median)",
+        "first success episode (median)",
+        "final greedy eval (mean)",
+        coverage_header,
+        "frames/s (mean)",
     ]
     note = (
         "Medians of frames and seconds to solved are over the seeds that solved; the per-seed values are in the "
@@ -129,8 +149,15 @@ def _learning_section(groups: dict[str, list[Run]], window: int) -> list[str]:
             ]
         )
     header = [
-        "method", "seeds", "episodes", "first success episode", "successful episodes",
-        f"best {window}-ep avg", f"final {window}-ep avg", "final greedy eval", "solved (episode)",
+        "method",
+        "seeds",
+        "episodes",
+        "first success episode",
+        "successful episodes",
+        f"best {window}-ep avg",
+        f"final {window}-ep avg",
+        "final greedy eval",
+        "solved (episode)",
     ]
     return [f"### Learning ({solved_at})", "", *_table(header, rows), ""]
 
@@ -155,8 +182,15 @@ def _greedy_section(groups: dict[str, list[Run]]) -> list[str]:
             ]
         )
     header = [
-        "method", "seeds", "solved (final greedy >= threshold)", "final greedy eval", "best periodic greedy eval",
-        "frames to first solved eval", "seconds to first solved eval", "run seconds", "frames/s",
+        "method",
+        "seeds",
+        "solved (final greedy >= threshold)",
+        "final greedy eval",
+        "best periodic greedy eval",
+        "frames to first solved eval",
+        "seconds to first solved eval",
+        "run seconds",
+        "frames/s",
     ]
     at = "" if threshold is None else f" (threshold {threshold:g})"
     return [f"### Greedy evaluations{at}", "", *_table(header, rows), ""]
@@ -190,17 +224,23 @@ def _exploration_section(
             if pair_dims:
                 row.append(_percent_and_seeds([pairwise_coverage(r.visited_states, bounds, bins) for r in with_states]))
             if bounds.progress_dim is not None:
-                row.append(_mean_and_seeds([max_position(r.visited_states, bounds.progress_dim) for r in with_states], 3))
+                row.append(
+                    _mean_and_seeds([max_position(r.visited_states, bounds.progress_dim) for r in with_states], 3)
+                )
         rows.append(row)
     lines = ["### Exploration", "", *_table(header, rows), ""]
     if bounds is not None:
         box = ", ".join(
             f"{bounds.labels[d]} in [{bounds.low[d]:.3g}, {bounds.high[d]:.3g}]" for d in bounds.coverage_dims
         )
-        source = "fitted to this environment's visited states: it has no entry in the task registry" if fitted else "fixed"
+        source = (
+            "fitted to this environment's visited states: it has no entry in the task registry" if fitted else "fixed"
+        )
         lines += [
-            f"Coverage: fraction of the cells of a {bins}x{bins} grid holding a visited state; box ({source}): {box}. "
-            "Coverage and max values are over the seeds that saved visited states.",
+            (
+                f"Coverage: fraction of the cells of a {bins}x{bins} grid holding a visited state; box ({source}): {box}. "
+                "Coverage and max values are over the seeds that saved visited states."
+            ),
             "",
         ]
     return lines
@@ -231,9 +271,7 @@ _DEFINITIONS = """\
 """
 
 
-def _env_section(
-    env: str, runs: Sequence[Run], out_dir: Path, window: int, bins: int
-) -> tuple[list[str], list[Path]]:
+def _env_section(env: str, runs: Sequence[Run], out_dir: Path, window: int, bins: int) -> tuple[list[str], list[Path]]:
     """The markdown lines and figures of one environment."""
     lines, written = [f"## {env}", ""], []
     bounds, fitted = env_bounds(env, runs)
@@ -250,14 +288,23 @@ def _env_section(
         lines += _learning_section(learning, window)
         figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{stem}.png")
         lines += _embed(figure, "learning curves", written)
-    exploration = group_runs([r for r in runs if r.is_exploration or r.visited_states is not None])  # learning runs too, if saved
+    exploration = group_runs(
+        [r for r in runs if r.is_exploration or r.visited_states is not None]
+    )  # learning runs too, if saved
     if exploration:
         lines += _exploration_section(exploration, bounds, fitted, window, bins)
         best = _best_runs(exploration, bounds, bins) if bounds is not None else {}
         if best:
             written.append(plot_coverage(env, best, bounds, bins, out_dir / f"coverage_{file_stem(env)}.png"))
-            shown = ", ".join(f"{method} seed {run.seed} ({coverage:.1%})" for method, (run, coverage, _) in best.items())
-            lines += [f"![visited states]({written[-1].name})", "", f"Panels, best-covering seed per method: {shown}.", ""]
+            shown = ", ".join(
+                f"{method} seed {run.seed} ({coverage:.1%})" for method, (run, coverage, _) in best.items()
+            )
+            lines += [
+                f"![visited states]({written[-1].name})",
+                "",
+                f"Panels, best-covering seed per method: {shown}.",
+                "",
+            ]
     return lines, written
 
 
@@ -270,7 +317,13 @@ def _deepsea_scaling_section(
 
     def rows(episode_of: Callable[[Run], int | None]) -> list[list[str]]:
         return [
-            [method, *(_count_median_range([episode_of(r) for r in by_size[n]]) if n in by_size else _MISSING for n in sizes)]
+            [
+                method,
+                *(
+                    _count_median_range([episode_of(r) for r in by_size[n]]) if n in by_size else _MISSING
+                    for n in sizes
+                ),
+            ]
             for method, by_size in scaling.items()
         ]
 
@@ -280,14 +333,21 @@ def _deepsea_scaling_section(
     lines += ["### Episodes to solved", "", *_table(header, rows(lambda run: run.episodes_to_solved)), ""]
     growth_header = ["method", "episodes to solved ~ N^k: k", "sizes fitted", "first treasure ~ N^k: k", "sizes fitted"]
     lines += ["### Growth with N", "", *_table(growth_header, _growth_rows(scaling, window)), ""]
-    lines += ["### Episodes to the first treasure", "", *_table(header, rows(lambda run: run.stats(window).first_success_episode)), ""]
     lines += [
-        "Cells: seeds that got there / seeds run, then the median [min, max] over the seeds that did; `–`: not run. "
-        "Episodes to solved: training episodes finished by the first periodic greedy evaluation at or above the "
-        "threshold (`solved_at_frames`; unsolved: never one). First treasure: the first training episode that reached "
-        "it. Growth: the least-squares slope of log(median episodes) on log N over the sizes where at least half "
-        "of the seeds got there, a straight line on the figure's log-log axes. Dithering needs about 2^N episodes to find the "
-        "treasure once (bsuite, Osband et al. 2020), the dashed line.",
+        "### Episodes to the first treasure",
+        "",
+        *_table(header, rows(lambda run: run.stats(window).first_success_episode)),
+        "",
+    ]
+    lines += [
+        (
+            "Cells: seeds that got there / seeds run, then the median [min, max] over the seeds that did; `–`: not run. "
+            "Episodes to solved: training episodes finished by the first periodic greedy evaluation at or above the "
+            "threshold (`solved_at_frames`; unsolved: never one). First treasure: the first training episode that reached "
+            "it. Growth: the least-squares slope of log(median episodes) on log N over the sizes where at least half "
+            "of the seeds got there, a straight line on the figure's log-log axes. Dithering needs about 2^N episodes to find the "
+            "treasure once (bsuite, Osband et al. 2020), the dashed line."
+        ),
         "",
     ]
     return lines, written
@@ -302,7 +362,10 @@ def _growth_rows(scaling: dict[str, dict[int, list[Run]]], window: int) -> list[
     def first_treasure(run: Run) -> int | None:
         return run.stats(window).first_success_episode
 
-    return [[method, *cells(deepsea_growth(by_size)), *cells(deepsea_growth(by_size, first_treasure))] for method, by_size in scaling.items()]
+    return [
+        [method, *cells(deepsea_growth(by_size)), *cells(deepsea_growth(by_size, first_treasure))]
+        for method, by_size in scaling.items()
+    ]
 
 
 def _embed(figure: Path | None, alt: str, written: list[Path]) -> list[str]:
@@ -352,5 +415,3 @@ def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100,
     for path in written:
         logger.info("Wrote %s", path)
     return written
-
-

@@ -4,6 +4,7 @@ An audit hook (PEP 578) appends one line to ``$NETGUARD_LOG`` for every DNS look
 host that is not local and every connect or send to an address outside loopback.
 It sees this interpreter only (not non-Python children such as wandb-core).
 """
+
 import ipaddress
 import os
 import sys
