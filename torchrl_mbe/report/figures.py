@@ -109,7 +109,7 @@ def plot_frames_to_solved(env: str, groups: dict[str, list[Run]], colors: dict[s
     ax.set_xticks(range(len(groups)), [f"{m}\n{solved_count(r)} solved" for m, r in groups.items()], fontsize=8)
     ax.set_ylabel("frames")
     ax.set_ylim(bottom=0)
-    ax.set_title(f"{env}: frames to solved (dots, bar: median) or run length if never solved (crosses)", fontsize=10)
+    ax.set_title(f"{env}: frames to solved\n(dots, bar: median) or run length if never solved (crosses)", fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     return save_figure(fig, path)
 
