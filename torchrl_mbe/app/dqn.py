@@ -25,7 +25,7 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
 from torchrl_mbe.app.observation import env_options
-from torchrl_mbe.app.optim import GradientStep, adam
+from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_fits, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.app.run import (
@@ -136,7 +136,12 @@ class DQNAgent:
         self.q_input_norm, self.settings = q_input_norm, settings
         self.standardizes_inputs = any(module is q_input_norm for module in actor.modules())
         self.members = q_step.num_members or 1  # a population's agents learn together, each from its own frames
-        self.q_updates, self.q_update_credit = 0, 0.0
+        self.q_schedule = UpdateSchedule(settings.learning_starts, settings.updates_per_frame)
+
+    @property
+    def q_updates(self) -> int:
+        """Q updates taken so far."""
+        return self.q_schedule.updates
 
     @property
     def eps(self) -> float:
@@ -168,19 +173,16 @@ class DQNAgent:
             return []
         for group in self.q_step.optimizer.param_groups:
             group["lr"] = q_learning_rate(settings, frames)
-        self.q_update_credit += new_frames * settings.updates_per_frame
         rows = []
-        while self.q_update_credit >= 1:
-            if self.q_updates == 0 and self.standardizes_inputs:
+        for update in self.q_schedule.due(frames, new_frames):
+            if update == 0 and self.standardizes_inputs:
                 fit_q_input_norm(self, replay_buffer)
             losses = update_q(self, replay_buffer)
-            self.q_updates += 1
-            self.q_update_credit -= 1
-            if settings.log_every_updates and self.q_updates % settings.log_every_updates == 0:
+            if settings.log_every_updates and (update + 1) % settings.log_every_updates == 0:
                 rows.append(
                     {
                         "frames": frames,
-                        "updates": self.q_updates,
+                        "updates": update + 1,
                         **losses,
                         **self.explorer.log_fields(),
                         "eps": self.eps,
@@ -199,8 +201,8 @@ class DQNAgent:
             "target_network": self.q_loss.target_value_network_params.data.clone().to_dict(),
             "target_updater_counter": getattr(self.target_updater, "counter", None),
             "q_optimizer": self.q_step.optimizer.state_dict(),
-            "q_updates": self.q_updates,
-            "q_update_credit": self.q_update_credit,
+            "q_updates": self.q_schedule.updates,
+            "q_update_credit": self.q_schedule.credit,
             "explorer": self.explorer.state_dict(),
         }
 
@@ -210,7 +212,7 @@ class DQNAgent:
         if state["target_updater_counter"] is not None:
             self.target_updater.counter = state["target_updater_counter"]
         self.q_step.optimizer.load_state_dict(state["q_optimizer"])
-        self.q_updates, self.q_update_credit = state["q_updates"], state["q_update_credit"]
+        self.q_schedule.load_state_dict({"updates": state["q_updates"], "credit": state["q_update_credit"]})
         self.explorer.load_state_dict(state["explorer"])
 
 

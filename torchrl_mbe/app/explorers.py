@@ -31,7 +31,7 @@ from torchrl.envs.transforms import RNDTransform
 from torchrl.modules import MLP, MultiAgentMLP, QValueActor, reset_noise
 from torchrl.objectives import DQNLoss, RNDLoss
 
-from torchrl_mbe.app.optim import GradientStep, adam
+from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
@@ -315,7 +315,7 @@ class PlanningExploration(ExplorationConfig):
 
 
 class DynamicsTraining:
-    """The dynamics model's own updates: a credit of ``updates_per_frame`` per frame, after ``learning_starts``.
+    """The dynamics model's own updates, on its own :class:`~torchrl_mbe.app.optim.UpdateSchedule` (``dynamics.learning_starts``, ``dynamics.updates_per_frame``).
 
     Its input statistics are fitted on the replay buffer before the first update.
     """
@@ -329,23 +329,14 @@ class DynamicsTraining:
             compile=compile,
             num_members=model.num_members,
         )
-        self.learning_starts, self.updates_per_frame, self.batch_size = (
-            dynamics.learning_starts,
-            dynamics.updates_per_frame,
-            dynamics.batch_size,
-        )
-        self.updates, self.credit, self.last_loss = 0, 0.0, None
+        self.schedule = UpdateSchedule(dynamics.learning_starts, dynamics.updates_per_frame)
+        self.batch_size, self.last_loss = dynamics.batch_size, None
 
     def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
-        if frames < self.learning_starts:
-            return
-        self.credit += new_frames * self.updates_per_frame
-        while self.credit >= 1:
-            if self.updates == 0:
+        for update in self.schedule.due(frames, new_frames):
+            if update == 0:
                 self.model.fit_normalization(replay_buffer, next_observation_key=SUCCESSOR_KEY)
             self.last_loss = self.update(replay_buffer)
-            self.updates += 1
-            self.credit -= 1
 
     def update(self, replay_buffer: ReplayBuffer) -> float:
         """One gradient step on its own batch from the replay buffer."""
@@ -354,14 +345,14 @@ class DynamicsTraining:
     def state_dict(self) -> dict:
         return {
             "optimizer": self.step.optimizer.state_dict(),
-            "updates": self.updates,
-            "credit": self.credit,
+            **self.schedule.state_dict(),
             "last_loss": self.last_loss,
         }
 
     def load_state_dict(self, state: dict) -> None:
         self.step.optimizer.load_state_dict(state["optimizer"])
-        self.updates, self.credit, self.last_loss = state["updates"], state["credit"], state["last_loss"]
+        self.schedule.load_state_dict(state)
+        self.last_loss = state["last_loss"]
 
 
 class PlanningExplorer(EGreedyExplorer):
@@ -459,7 +450,7 @@ class PlanningExplorer(EGreedyExplorer):
         }
 
     def summary_fields(self) -> dict[str, int]:
-        return {"dynamics_updates": self.training.updates if self.training is not None else 0}
+        return {"dynamics_updates": self.training.schedule.updates if self.training is not None else 0}
 
     def state_dict(self) -> dict:
         return {

@@ -9,7 +9,7 @@ from tensordict import TensorDictBase
 
 from torchrl_mbe.modules.population import clip_grad_norm_per_member_
 
-__all__ = ["GradientStep", "adam"]
+__all__ = ["GradientStep", "UpdateSchedule", "adam"]
 
 log = logging.getLogger(__name__)
 
@@ -23,6 +23,45 @@ def adam(parameters, lr: float) -> torch.optim.Adam:
     few per parameter.
     """
     return torch.optim.Adam([parameter for parameter in parameters if parameter.requires_grad], lr=lr, fused=True)
+
+
+class UpdateSchedule:
+    """The gradient updates collected frames pay for: ``updates_per_frame`` a frame once ``learning_starts`` frames are in.
+
+    The Q-network and the dynamics model each keep one; fractions of an update carry
+    over as credit, and both counters travel in checkpoints (:meth:`state_dict`).
+
+    Examples:
+        >>> from torchrl_mbe.app.optim import UpdateSchedule
+        >>> schedule = UpdateSchedule(learning_starts=100, updates_per_frame=0.25)
+        >>> list(schedule.due(frames=64, new_frames=64)), list(schedule.due(frames=128, new_frames=64))
+        ([], [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15])
+        >>> list(schedule.due(frames=134, new_frames=6)), schedule.credit  # one and a half updates
+        ([16], 0.5)
+    """
+
+    def __init__(self, learning_starts: int, updates_per_frame: float) -> None:
+        self.learning_starts, self.updates_per_frame = learning_starts, updates_per_frame
+        self.updates, self.credit = 0, 0.0
+
+    def due(self, frames: int, new_frames: int):
+        """Yields the index of each update that ``new_frames`` more frames pay for (``frames`` collected in all); 0 is the first ever.
+
+        The update counter advances as each one is taken (after the caller's loop body).
+        """
+        if frames < self.learning_starts:
+            return
+        self.credit += new_frames * self.updates_per_frame
+        while self.credit >= 1:
+            yield self.updates
+            self.updates += 1
+            self.credit -= 1
+
+    def state_dict(self) -> dict:
+        return {"updates": self.updates, "credit": self.credit}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.updates, self.credit = state["updates"], state["credit"]
 
 
 class GradientStep:
