@@ -6,7 +6,7 @@ One owner for the format, used by both sides (:mod:`torchrl_mbe.app` writes,
 A run directory holds:
 
 * ``summary.json``: the run's outcome, fields in :data:`SUMMARY_FIELDS`;
-* the CSV tables of :data:`TABLES` (``episodes.csv``: one row per finished training
+* the CSV tables of :func:`tables` (``episodes.csv``: one row per finished training
   episode; ``evaluations.csv``: one row per greedy evaluation; ``updates.csv``:
   losses, dynamics error, eps and throughput every few updates);
 * ``checkpoint.pt`` (what ``resume=true`` continues from) and ``best_policy.pt``
@@ -17,7 +17,7 @@ A run directory holds:
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 __all__ = [
@@ -26,13 +26,13 @@ __all__ = [
     "EXPLORATION_PREFIX",
     "SUMMARY",
     "SUMMARY_FIELDS",
-    "TABLES",
     "UPDATE_COUNTERS",
     "VISITED_EPISODES",
     "VISITED_STATES",
     "is_int",
     "is_number",
     "table_file",
+    "tables",
 ]
 
 SUMMARY = "summary.json"
@@ -41,23 +41,27 @@ BEST_POLICY = "best_policy.pt"
 VISITED_STATES = "visited_states.npy"
 VISITED_EPISODES = "visited_episodes.npy"
 
-TABLES: dict[str, tuple[str, ...]] = {
-    "episodes": ("episode", "frames", "return", "length", "reached_goal", "eps", "wall_time_s"),
-    "evaluations": ("frames", "episode", "eval_return_mean", "eval_return_std", "eval_success_rate"),
-    "updates": (
-        "frames",
-        "updates",
-        "loss_q",
-        "loss_dynamics",
-        "dynamics_val_error",
-        "loss_rnd",
-        "eps",
-        "frames_per_s",
-    ),
-}
-"""The CSV tables of a run and their columns."""
 
-UPDATE_COUNTERS = ("q_updates", "dynamics_updates")
+def tables(explorer_columns: Sequence[str] = ()) -> dict[str, tuple[str, ...]]:
+    """The CSV tables of a run and their columns; ``explorer_columns``: what explorers log beside the Q loss.
+
+    The app passes the columns its explorers declare (``Explorer.log_columns``, in
+    :mod:`torchrl_mbe.app.explorers`), every one in every run, so all runs share one header.
+
+    Examples:
+        >>> from torchrl_mbe.rundir import tables
+        >>> tables(["loss_rnd"])["updates"]
+        ('frames', 'updates', 'loss_q', 'loss_rnd', 'eps', 'frames_per_s')
+    """
+    return {
+        "episodes": ("episode", "frames", "return", "length", "reached_goal", "eps", "wall_time_s"),
+        "evaluations": ("frames", "episode", "eval_return_mean", "eval_return_std", "eval_success_rate"),
+        "updates": ("frames", "updates", "loss_q", *explorer_columns, "eps", "frames_per_s"),
+    }
+
+
+UPDATE_COUNTERS = ("q_updates",)
+"""The summary's update counters every DQN run has; explorers declare theirs (``Explorer.counters``)."""
 """The summary's counts of gradient updates, per model; 0 for a model the algorithm does not have."""
 
 EXPLORATION_PREFIX = "explore:"
@@ -65,7 +69,7 @@ EXPLORATION_PREFIX = "explore:"
 
 
 def table_file(table: str) -> str:
-    """The file name of one of :data:`TABLES`: ``episodes.csv``, ..."""
+    """The file name of one of the :func:`tables`: ``episodes.csv``, ..."""
     return f"{table}.csv"
 
 

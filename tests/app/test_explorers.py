@@ -74,9 +74,25 @@ class ConstantEGreedyExploration(ExplorationConfig):
 
 
 class ConstantEGreedyExplorer(EGreedyExplorer):
-    """The worked example of docs/architecture.md: e-greedy at a fixed rate."""
+    """The worked example of docs/architecture.md: e-greedy at a fixed rate, which logs how many frames it saw."""
 
     schema = ConstantEGreedyExploration
+    log_columns = ("frames_seen",)
+    counters = ("batches_seen",)
+
+    def __init__(self, policy, eps_module) -> None:
+        super().__init__(policy, eps_module)
+        self.frames_seen = self.batches_seen = 0
+
+    def observe(self, batch) -> None:
+        self.frames_seen += batch.numel()
+        self.batches_seen += 1
+
+    def log_fields(self) -> dict[str, float | None]:
+        return {"frames_seen": self.frames_seen}
+
+    def summary_fields(self) -> dict[str, int]:
+        return {"batches_seen": self.batches_seen}
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -88,8 +104,15 @@ class ConstantEGreedyExplorer(EGreedyExplorer):
 def test_a_new_explorer_is_one_class_and_one_registry_entry(tmp_path, monkeypatch, compose_config, read_table):
     monkeypatch.setitem(EXPLORERS, "constant", ConstantEGreedyExplorer)
     register_configs()
-    summary = train(compose_config("exploration=constant", "exploration.eps=0.3"), tmp_path)
+    summary = train(
+        compose_config("exploration=constant", "exploration.eps=0.3", "logger.log_every_updates=10"), tmp_path
+    )
     assert summary["method"] == "dqn+constant" and summary["q_updates"] > 0
     assert {float(row["eps"]) for row in read_table(tmp_path, "episodes")} == {0.3}
+    updates = read_table(tmp_path, "updates")
+    assert updates and all(
+        int(row["frames_seen"]) == int(row["frames"]) for row in updates
+    )  # its own column, declared once
+    assert summary["batches_seen"] == summary["frames"] // 16 and summary["dynamics_updates"] == 0
     with pytest.raises(ConfigError, match="exploration.eps=1.5: expected a number in"):
         train(compose_config("exploration=constant", "exploration.eps=1.5"), tmp_path / "bad")

@@ -13,13 +13,13 @@ from torchrl.collectors import Collector
 from torchrl_mbe.app import ConfigError, check_config, train
 from torchrl_mbe.app.config import config_id
 from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
-from torchrl_mbe.app.explorers import RNDExplorer
+from torchrl_mbe.app.explorers import RNDExplorer, logged_columns
 from torchrl_mbe.app.replay import ReplayTransitions
 from torchrl_mbe.app.run import load_safely, make_run_env
 from torchrl_mbe.modules import Standardize
 from torchrl_mbe.modules.population import PopulationReplayBuffer
 from torchrl_mbe.report.runs import load_runs
-from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, TABLES, table_file
+from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, table_file, tables
 
 SMALL = ("algo.num_cells=[16,16]", "dynamics.num_cells=[16]", "algo.batch_size=32", "dynamics.batch_size=32")
 
@@ -34,7 +34,7 @@ def test_a_population_writes_one_single_run_directory_per_member(tmp_path, compo
         written = json.loads((member / SUMMARY).read_text())
         assert written["seed"] == seed and written["config_id"] == config_id(single)  # grouped with single runs of it
         assert written["frames"] == 304 and written["q_updates"] > 0 and written["final_eval_return"] is not None
-        for table, columns in TABLES.items():
+        for table, columns in tables(logged_columns()).items():
             with (member / table_file(table)).open() as handle:
                 assert tuple(csv.DictReader(handle).fieldnames) == columns
         with (member / table_file("episodes")).open() as handle:

@@ -16,7 +16,7 @@ import torchrl_mbe.app.run as run_module
 from torchrl_mbe.app import ConfigError, train
 from torchrl_mbe.app.reinforce import build_reinforce_agent, make_policy_actor, write_advantage
 from torchrl_mbe.envs import make_env
-from torchrl_mbe.rundir import CHECKPOINT, TABLES
+from torchrl_mbe.rundir import CHECKPOINT, tables
 
 
 @pytest.fixture
@@ -31,7 +31,7 @@ def test_reinforce_trains_and_writes_the_same_run_files_as_dqn(tmp_path, read_ta
     assert summary["frames"] == 400 and summary["episodes"] == 2  # MountainCar's time limit: 200 steps
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
     episodes = read_table(tmp_path, "episodes")
-    assert tuple(episodes[0]) == TABLES["episodes"]
+    assert tuple(episodes[0]) == tables()["episodes"]
     assert [(row["episode"], row["frames"], float(row["eps"])) for row in episodes] == [
         ("1", "200", 0.0),
         ("2", "400", 0.0),

@@ -48,7 +48,16 @@ from torchrl_mbe.modules.population import (
 from torchrl_mbe.objectives import DynamicsLoss
 from torchrl_mbe.rundir import is_int
 
-__all__ = ["EXPLORERS", "ExplorationConfig", "Explorer", "ExplorerContext", "PlanningExplorer", "explorer_of"]
+__all__ = [
+    "EXPLORERS",
+    "ExplorationConfig",
+    "Explorer",
+    "ExplorerContext",
+    "PlanningExplorer",
+    "explorer_of",
+    "logged_columns",
+    "logged_counters",
+]
 
 WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
 
@@ -87,6 +96,8 @@ class Explorer:
     """
 
     schema: ClassVar[type[ExplorationConfig]] = NoExploration
+    log_columns: ClassVar[tuple[str, ...]] = ()  # the updates table's columns that log_fields and after_q_update fill
+    counters: ClassVar[tuple[str, ...]] = ()  # the summary's counters that summary_fields returns
     intrinsic_coef: float | None = None  # the Q-network learns reward + intrinsic_coef * ("next", "intrinsic_reward")
 
     def __init__(self, policy: TensorDictModuleBase) -> None:
@@ -205,6 +216,7 @@ class RNDExplorer(EGreedyExplorer):
     """
 
     schema = RNDExploration
+    log_columns = ("loss_rnd",)
 
     def __init__(
         self, policy, eps_module, rnd: RNDTransform, loss: RNDLoss, step: GradientStep, intrinsic_coef: float
@@ -366,6 +378,8 @@ class PlanningExplorer(EGreedyExplorer):
     """
 
     schema = PlanningExploration
+    log_columns = ("loss_dynamics", "dynamics_val_error")
+    counters = ("dynamics_updates",)
     scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
     def __init__(
@@ -556,6 +570,16 @@ EXPLORERS: dict[str, type[Explorer]] = {
 }
 """Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde),
 TorchRL's RND and NoisyNet, e-greedy (random exploring actions) and none (never explores)."""
+
+
+def logged_columns() -> tuple[str, ...]:
+    """The updates table's columns of every registered explorer, in registry order (the run directory's header)."""
+    return tuple(dict.fromkeys(column for explorer in EXPLORERS.values() for column in explorer.log_columns))
+
+
+def logged_counters() -> tuple[str, ...]:
+    """The summary's counters of every registered explorer, in registry order."""
+    return tuple(dict.fromkeys(counter for explorer in EXPLORERS.values() for counter in explorer.counters))
 
 
 def _field_names(schema: type) -> set[str]:

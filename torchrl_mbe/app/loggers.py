@@ -12,7 +12,8 @@ from typing import TYPE_CHECKING
 from omegaconf import DictConfig, OmegaConf
 from torchrl.record.loggers import Logger, TensorboardLogger, WandbLogger
 
-from torchrl_mbe.rundir import TABLES, table_file
+from torchrl_mbe.app.explorers import logged_columns
+from torchrl_mbe.rundir import table_file, tables
 
 if TYPE_CHECKING:
     from torch.utils.tensorboard import SummaryWriter
@@ -27,7 +28,7 @@ TENSORBOARD_DIR = "tensorboard"
 
 
 class RunLogger:
-    """Appends rows to the run's CSV tables (:data:`~torchrl_mbe.rundir.TABLES`) and mirrors them to wandb or TensorBoard.
+    """Appends rows to the run's CSV tables (:func:`~torchrl_mbe.rundir.tables`, with the registered explorers' columns) and mirrors them to wandb or TensorBoard.
 
     Headers are written and flushed when the files open, and every row is
     flushed, so a killed run leaves readable tables. The mirror gets every
@@ -56,7 +57,7 @@ class RunLogger:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self._files = {}
         self._writers = {}
-        for table, columns in TABLES.items():
+        for table, columns in tables(logged_columns()).items():
             path = self.run_dir / table_file(table)
             kept = _rows_up_to(path, resume_frames) if resume_frames is not None else []
             handle = path.open("w", newline="")

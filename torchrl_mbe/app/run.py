@@ -30,6 +30,7 @@ from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
 from tqdm.auto import tqdm
 
 from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
+from torchrl_mbe.app.explorers import logged_counters
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.observation import env_options
 from torchrl_mbe.app.rollout import EnvState
@@ -93,7 +94,9 @@ class Agent(Protocol):
 
     actor: TensorDictModuleBase  # the greedy actor (evaluation, best policy)
 
-    def summary_fields(self) -> dict[str, int]: ...  # its update counters (rundir.UPDATE_COUNTERS)
+    def summary_fields(
+        self,
+    ) -> dict[str, int]: ...  # its update counters (rundir.UPDATE_COUNTERS, its explorer's counters)
 
     def state_dict(self) -> dict: ...  # everything it trains and counts
 
@@ -575,7 +578,7 @@ def write_summary(run: Run, final: dict | None) -> dict:
         "config_id": config_id(cfg),
         "frames": progress.frames,
         "episodes": progress.episodes,
-        **dict.fromkeys(UPDATE_COUNTERS, 0),
+        **dict.fromkeys((*UPDATE_COUNTERS, *logged_counters()), 0),
         **run.agent.summary_fields(),
         "wall_time_s": round(progress.wall_time_s, 2),
         "frames_per_s": round(progress.frames / max(progress.wall_time_s, 1e-9), 1),
