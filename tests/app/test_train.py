@@ -154,7 +154,11 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(
         ),
         (["algo.eps_end=0", "algo.eps_schedule=exponential"], "The exponential schedule needs eps_end > 0"),
         (["device=banana"], "device='banana': expected cpu, or cuda"),
-        (["env.size=5"], "env.size=5: only env=deepsea has a size"),
+        (["env.size=5"], r"env.size=5: mountaincar has no size \(those that have: deepsea\); leave it unset"),
+        (
+            ["env=deepsea", "+env.make_kwargs.depth=3"],
+            r"env.make_kwargs: deepsea takes size, mapping_seed, .*, not depth",
+        ),
         (["env=deepsea", "env.size=0"], r"env.size=0: expected a positive integer, or null"),
         (["dynamics.max_grad_norm=0"], "dynamics.max_grad_norm=0.0: expected a number > 0, or null"),
         (["exploration=diagonal", "exploration.min_variance=0"], "exploration.min_variance=0.0: expected a number > 0"),

@@ -42,7 +42,7 @@ from torchrl_mbe.app.settings import (
     one_of,
     setting,
 )
-from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
+from torchrl_mbe.envs.registry import TASKS, Task, resolve_env_id, task_of
 from torchrl_mbe.modules.dynamics import OUTPUTS, check_output
 from torchrl_mbe.modules.exploration import check_eps_schedule
 from torchrl_mbe.rundir import EXPLORATION_PREFIX
@@ -290,10 +290,7 @@ def _check_together(config: Config) -> None:
     except ValueError as error:
         raise ConfigError(f"env.name={config.env.name!r}: {error}") from None
     _check_device(config.device)
-    if config.env.size is not None and env_id != TASKS["deepsea"].env_id:
-        raise ConfigError(
-            f"env.size={config.env.size}: only env=deepsea has a size; leave it unset (null) for {config.env.name}."
-        )
+    _check_env_options(config.env, task_of(env_id))
     if (missing := backend_unavailable(config.logger.backend)) is not None:
         raise ConfigError(f"logger={config.logger.backend}: {missing}")
     num_envs, frames_per_batch = config.env.num_envs, config.collector.frames_per_batch
@@ -320,6 +317,18 @@ def _check_together(config: Config) -> None:
         raise ConfigError(f"dynamics (output, normalize): {error}") from None
     if config.population > 1:
         _check_population(config)
+
+
+def _check_env_options(env: EnvConfig, task: Task | None) -> None:
+    """``env.size`` and ``env.make_kwargs`` of a torch-only task: only what its registry entry takes (a gymnasium task's ``gym.make`` checked them)."""
+    options = task.options if task is not None else ()
+    if env.size is not None and "size" not in options:
+        with_size = ", ".join(alias for alias, entry in TASKS.items() if "size" in entry.options)
+        raise ConfigError(
+            f"env.size={env.size}: {env.name} has no size (those that have: {with_size}); leave it unset (null)."
+        )
+    if task is not None and not task.gymnasium and (unknown := sorted(set(env.make_kwargs) - set(options))):
+        raise ConfigError(f"env.make_kwargs: {env.name} takes {', '.join(options)}, not {', '.join(unknown)}.")
 
 
 def _check_population(config: Config) -> None:

@@ -10,6 +10,7 @@ adding one entry to :data:`TASKS` (and a ``conf/env/<alias>.yaml`` for the app).
 
 from __future__ import annotations
 
+import inspect
 import math
 from dataclasses import dataclass, replace
 from typing import Any, Literal
@@ -136,6 +137,20 @@ class Task:
     gymnasium: bool = True
     oracle: type[TensorDictModuleBase] | None = None
     solved_by: Literal["return", "success"] = "return"
+
+    @property
+    def options(self) -> tuple[str, ...]:
+        """The keyword arguments a torch-only task takes (its ``torch_env``'s, beside ``num_envs``, ``seed``, ``device``); a gymnasium task's are ``gym.make``'s.
+
+        Examples:
+            >>> from torchrl_mbe.envs.registry import TASKS
+            >>> TASKS["deepsea"].options[:2], TASKS["cartpole"].options
+            (('size', 'mapping_seed'), ())
+        """
+        if self.gymnasium or self.torch_env is None:
+            return ()
+        parameters = inspect.signature(self.torch_env.__init__).parameters
+        return tuple(name for name in parameters if name not in ("self", "num_envs", "seed", "device"))
 
 
 TASKS: dict[str, Task] = {
