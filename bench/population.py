@@ -6,8 +6,8 @@
 For N = 1, 5, 20, 100 members and hidden layers 64x64 and 256x256 (MountainCar's
 sizes: 2 observations, 3 actions), one update is: sample 256 transitions per member,
 DQN loss (double DQN, smooth L1), backward, gradient clipping, fused Adam, target
-update. "population" is one update of all N members (``torchrl_mbe.modules.population``:
-``MultiAgentMLP``, ``PopulationDQNLoss``, per-member clipping, ``PopulationReplayBuffer``);
+update. "population" is one update of all N members (``MultiAgentMLP``, ``PopulationDQNLoss``,
+per-member clipping, ``PopulationReplayBuffer``; docs/architecture.md, "Where the member dimension lives");
 "N singles" is N separate networks, each with its own TorchRL ``DQNLoss``, Adam,
 ``HardUpdate`` and ``TensorDictReplayBuffer(LazyTensorStorage)``, updated in sequence:
 the work of N single runs. Speed-up is N singles' time over the population's; "vs N x one
@@ -36,13 +36,10 @@ from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
 
-from torchrl_mbe.modules.networks import make_per_action_mlp
-from torchrl_mbe.modules.population import (
-    PopulationDQNLoss,
-    PopulationReplayBuffer,
-    clip_grad_norm_per_member_,
-    make_population_q_actor,
-)
+from torchrl_mbe.app.optim import clip_grad_norm_per_member_
+from torchrl_mbe.app.replay import PopulationReplayBuffer
+from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
+from torchrl_mbe.objectives.population import PopulationDQNLoss
 
 OBSERVATION_SIZE = 2
 ACTION_SPEC = OneHot(3)

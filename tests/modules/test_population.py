@@ -15,18 +15,17 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, RNDLoss
 
-from torchrl_mbe.modules.networks import make_per_action_mlp
-from torchrl_mbe.modules.population import (
-    PopulationDQNLoss,
-    PopulationReplayBuffer,
-    PopulationRNDLoss,
-    PopulationRNDTransform,
-    clip_grad_norm_per_member_,
+from torchrl_mbe.app.optim import clip_grad_norm_per_member_
+from torchrl_mbe.app.replay import PopulationReplayBuffer
+from torchrl_mbe.envs.transforms import PopulationRNDTransform
+from torchrl_mbe.modules.networks import (
     make_members_mlp,
+    make_per_action_mlp,
     make_population_q_actor,
     member_state_dict,
     reset_members_noise,
 )
+from torchrl_mbe.objectives.population import PopulationDQNLoss, PopulationRNDLoss
 
 SPEC = OneHot(3)
 OBSERVATION_SIZE = 2

@@ -38,9 +38,9 @@ from torchrl_mbe.app.run import (
     record_frames,
     record_updates,
 )
-from torchrl_mbe.modules.networks import make_per_action_mlp
+from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.modules.normalization import Standardize
-from torchrl_mbe.modules.population import PopulationDQNLoss, make_population_q_actor
+from torchrl_mbe.objectives.population import PopulationDQNLoss
 
 __all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "num_members", "train_dqn"]
 
@@ -295,7 +295,7 @@ def make_q_actor(
 
     With ``input_norm`` the MLP reads observations standardized by it; with
     ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
-    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.population.make_population_q_actor`).
+    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`).
     """
     if num_members is not None:
         return make_population_q_actor(

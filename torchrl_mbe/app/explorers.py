@@ -35,17 +35,14 @@ from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
+from torchrl_mbe.envs.transforms import PopulationRNDTransform
 from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
+from torchrl_mbe.modules.networks import make_members_mlp, reset_members_noise
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.population import (
-    PopulationRNDLoss,
-    PopulationRNDTransform,
-    make_members_mlp,
-    reset_members_noise,
-)
 from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.objectives.population import PopulationRNDLoss
 from torchrl_mbe.rundir import is_int
 
 __all__ = [
@@ -212,7 +209,7 @@ class RNDExplorer(EGreedyExplorer):
     ``("next", "intrinsic_reward")``; the loss normalizes observations with the
     transform's running statistics once they exist (after the first collected step).
     A population's members each have their own target, predictor and statistics
-    (:class:`~torchrl_mbe.modules.population.PopulationRNDTransform` and ``PopulationRNDLoss``).
+    (:class:`~torchrl_mbe.envs.transforms.PopulationRNDTransform` and :class:`~torchrl_mbe.objectives.population.PopulationRNDLoss`).
     """
 
     schema = RNDExploration

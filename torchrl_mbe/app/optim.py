@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
 
 import torch
 from tensordict import TensorDictBase
 
-from torchrl_mbe.modules.population import clip_grad_norm_per_member_
-
-__all__ = ["GradientStep", "UpdateSchedule", "adam"]
+__all__ = ["GradientStep", "UpdateSchedule", "adam", "clip_grad_norm_per_member_"]
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +73,7 @@ class GradientStep:
 
     A population's step (``num_members``) takes ``loss(batch) -> [M]``, one loss per
     member, back-propagates their sum and clips each member's gradient on its own
-    (:func:`~torchrl_mbe.modules.population.clip_grad_norm_per_member_`): members
+    (:func:`clip_grad_norm_per_member_`): members
     never share a norm, and Adam's update is elementwise.
 
     Args:
@@ -135,3 +134,50 @@ class GradientStep:
             self._loss_and_backward = self._eager_loss_and_backward
             self.optimizer.zero_grad(set_to_none=True)
             return self._loss_and_backward(batch)
+
+
+def clip_grad_norm_per_member_(parameters: Iterable[torch.Tensor], max_norm: float, num_members: int) -> torch.Tensor:
+    """Clips each member's gradient norm to ``max_norm``, as ``torch.nn.utils.clip_grad_norm_`` clips one network's.
+
+    Member ``m``'s norm is taken over its slice ``p.grad[m]`` of every parameter
+    ``p`` (stacked ``[M, ...]``), and only its slices are scaled, by
+    ``min(1, max_norm / (norm + 1e-6))``: one member's gradient never changes
+    another's. Parameters without a gradient are skipped.
+
+    Args:
+        parameters (iterable of tensors): stacked parameters, each ``[num_members, ...]``.
+        max_norm (float): the largest norm a member's gradient keeps.
+        num_members (int): the population size ``M``.
+
+    Returns:
+        each member's norm before clipping, ``[M]``.
+
+    Raises:
+        ValueError: a parameter's leading dimension is not ``num_members`` (a parameter
+            shared by the members, which per-member clipping cannot split).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.app.optim import clip_grad_norm_per_member_
+        >>> weight = torch.zeros(2, 3, requires_grad=True)
+        >>> weight.grad = torch.tensor([[3.0, 4.0, 0.0], [0.3, 0.4, 0.0]])
+        >>> clip_grad_norm_per_member_([weight], max_norm=1.0, num_members=2)
+        tensor([5.0000, 0.5000])
+        >>> weight.grad.norm(dim=1)
+        tensor([1.0000, 0.5000])
+    """
+    parameters = list(parameters)
+    for parameter in parameters:
+        if parameter.ndim == 0 or parameter.shape[0] != num_members:
+            raise ValueError(
+                f"clip_grad_norm_per_member_ needs parameters stacked over {num_members} members, got one of shape {tuple(parameter.shape)}."
+            )
+    grads = [parameter.grad for parameter in parameters if parameter.grad is not None]
+    if not grads:
+        return torch.zeros(num_members)
+    slice_norms = [torch.linalg.vector_norm(grad.reshape(num_members, -1), dim=1) for grad in grads]
+    member_norms = torch.linalg.vector_norm(torch.stack(slice_norms), dim=0)
+    scale = (max_norm / (member_norms + 1e-6)).clamp(max=1.0)
+    for grad in grads:
+        grad.mul_(scale.view(num_members, *(1,) * (grad.ndim - 1)))
+    return member_norms

@@ -1,9 +1,9 @@
 """``population=M``: the DQN agents of seeds ``seed`` .. ``seed+M-1`` trained as one batched program.
 
 :func:`train_dqn_population` is :func:`~torchrl_mbe.app.dqn.train_dqn`'s loop over a
-member dimension (see :mod:`torchrl_mbe.modules.population` for where it lives in
+member dimension (see docs/architecture.md, "Where the member dimension lives", for where it lives in
 each tensor): one env batch ``(num_envs, M)``, one collector, one
-:class:`~torchrl_mbe.modules.population.PopulationReplayBuffer`, one agent whose
+:class:`~torchrl_mbe.app.replay.PopulationReplayBuffer`, one agent whose
 networks, dynamics models, novelty windows and input statistics carry the member
 dimension and whose gradient steps clip per member. The bookkeeping is per member:
 each member is a :class:`~torchrl_mbe.app.run.Run` writing the run directory a
@@ -35,7 +35,7 @@ from tqdm.auto import tqdm
 from torchrl_mbe.app.config import ConfigError, seeds_name
 from torchrl_mbe.app.dqn import DQNAgent, build_dqn_agent
 from torchrl_mbe.app.loggers import RunLogger
-from torchrl_mbe.app.replay import ReplayTransitions, check_replay_fits
+from torchrl_mbe.app.replay import PopulationReplayBuffer, ReplayTransitions, check_replay_fits
 from torchrl_mbe.app.rollout import CollectorState, EnvState
 from torchrl_mbe.app.run import (
     CHECKPOINT_FORMAT,
@@ -60,7 +60,7 @@ from torchrl_mbe.app.run import (
     summary_line,
 )
 from torchrl_mbe.envs import resolve_env_id
-from torchrl_mbe.modules.population import PopulationReplayBuffer, member_state_dict
+from torchrl_mbe.modules.networks import member_state_dict
 from torchrl_mbe.rundir import CHECKPOINT, SUMMARY
 
 __all__ = ["Population", "member_dir", "train_dqn_population"]

@@ -18,6 +18,7 @@ from torchrl_mbe.rundir import CHECKPOINT
 
 __all__ = [
     "SUCCESSOR_KEY",
+    "PopulationReplayBuffer",
     "ReplayState",
     "ReplayTransitions",
     "check_replay_fits",
@@ -222,3 +223,107 @@ def one_step_transitions(frames: TensorDictBase) -> TensorDictBase:
     """The keys the losses read from collected ``frames``, with the one-step successor the dynamics model learns."""
     transitions = frames.select(*ReplayTransitions.KEYS)
     return transitions.set(SUCCESSOR_KEY, transitions.get(("next", "observation")))
+
+
+class PopulationReplayBuffer:
+    """A ring buffer of ``[capacity, M]`` transitions in which every member draws its own indices.
+
+    :meth:`extend` writes ``N`` rows of all members at once (a batch ``[N, M]``,
+    or ``[*N, M]``, flattened); :meth:`sample` draws a ``[batch_size, M]`` index
+    tensor from torch's generator (of the storage's device) in one call and takes
+    member ``m``'s column ``m`` of it from member ``m``'s storage only, so a member's
+    sample depends on its own transitions and the generator's state, never on another
+    member's data. TorchRL's ``TensorDictReplayBuffer`` over the same storage would
+    draw one index per row shared by every member (or, with ``ndim=2``, indices over
+    all ``capacity * M`` transitions, mixing members).
+
+    The storage is a TensorDict allocated at the first :meth:`extend`, with that
+    batch's entries. The sample carries its indices under ``"index"``, as TorchRL's
+    buffers do.
+
+    Args:
+        capacity (int): rows kept; the oldest are overwritten first.
+        num_members (int): the population size ``M``.
+
+    Keyword Args:
+        device (torch.device or str): where the storage lives. Defaults to ``"cpu"``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl_mbe.app.replay import PopulationReplayBuffer
+        >>> buffer = PopulationReplayBuffer(capacity=4, num_members=3)
+        >>> _ = buffer.extend(TensorDict(reward=torch.arange(18.0).view(6, 3, 1), batch_size=[6, 3]))
+        >>> len(buffer), buffer.state_dict()["storage"]["reward"][:, 0, 0].tolist()  # rows 4, 5 overwrote 0, 1
+        (4, [12.0, 15.0, 6.0, 9.0])
+        >>> sample = buffer.sample(8)
+        >>> sample.batch_size, sample["index"].shape
+        (torch.Size([8, 3]), torch.Size([8, 3]))
+    """
+
+    def __init__(self, capacity: int, num_members: int, *, device: torch.device | str = "cpu") -> None:
+        if capacity < 1 or num_members < 1:
+            raise ValueError(f"capacity and num_members must be positive, got {capacity} and {num_members}.")
+        self.capacity = capacity
+        self.num_members = num_members
+        self.device = torch.device(device)
+        self._storage: TensorDictBase | None = None
+        self._cursor = 0
+        self._size = 0
+
+    def __len__(self) -> int:
+        return self._size
+
+    def __getitem__(self, rows: slice) -> TensorDictBase:
+        """Stored rows of every member (storage order, ``[rows, M]``): ``buffer[: len(buffer)]`` reads them all, as for TorchRL's buffers."""
+        if self._storage is None:
+            raise RuntimeError("PopulationReplayBuffer is empty.")
+        return self._storage[: self._size][rows]
+
+    def extend(self, data: TensorDictBase) -> torch.Tensor:
+        """Writes ``data`` (batch ``[*N, M]``) after the newest rows, overwriting the oldest; returns the rows written."""
+        if data.batch_size[-1:] != (self.num_members,):
+            raise ValueError(f"extend expects a batch [*N, {self.num_members}], got {list(data.batch_size)}.")
+        data = data.reshape(-1, self.num_members)
+        num_rows = data.shape[0]
+        # The rows a write of one row after another would leave: the last `capacity` of them.
+        rows = ((self._cursor + torch.arange(num_rows, device=self.device)) % self.capacity)[-self.capacity :]
+        data = data[-self.capacity :].to(self.device)
+        if self._storage is None:
+            self._storage = data.apply(
+                lambda entry: entry.new_zeros((self.capacity, *entry.shape[1:])),
+                batch_size=[self.capacity, self.num_members],
+            )
+        self._storage[rows] = data
+        self._cursor = (self._cursor + num_rows) % self.capacity
+        self._size = min(self._size + num_rows, self.capacity)
+        return rows
+
+    def sample(self, batch_size: int) -> TensorDictBase:
+        """``batch_size`` transitions per member, drawn uniformly (with replacement) and independently per member: ``[batch_size, M]``."""
+        if self._size == 0:
+            raise RuntimeError("cannot sample from an empty PopulationReplayBuffer.")
+        index = torch.randint(self._size, (batch_size, self.num_members), device=self.device)
+        # Row r of member m is entry r * M + m of the flattened storage: index_select on it is
+        # 2-3x faster on a CPU than indexing the storage with [index, members] (measured at M = 20, 100).
+        flat_index = (index * self.num_members + torch.arange(self.num_members, device=self.device)).reshape(-1)
+        sample = self._storage.reshape(-1).apply(
+            lambda entry: entry.index_select(0, flat_index).view(batch_size, self.num_members, *entry.shape[1:]),
+            batch_size=[batch_size, self.num_members],
+        )
+        sample.set("index", index)
+        return sample
+
+    def state_dict(self) -> dict:
+        """The storage as nested dicts of tensors and the ring's position, loadable with ``torch.load(weights_only=True)``."""
+        storage = None if self._storage is None else self._storage.to_dict()
+        return {"storage": storage, "cursor": self._cursor, "size": self._size}
+
+    def load_state_dict(self, state: dict) -> None:
+        storage = state["storage"]
+        self._storage = (
+            None
+            if storage is None
+            else TensorDict(storage, batch_size=[self.capacity, self.num_members], device=self.device)
+        )
+        self._cursor, self._size = state["cursor"], state["size"]

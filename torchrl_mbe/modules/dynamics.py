@@ -12,9 +12,8 @@ from torchrl.data import Composite, ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
-from torchrl_mbe.modules.networks import init_linear_layers
+from torchrl_mbe.modules.networks import init_linear_layers, make_members_mlp
 from torchrl_mbe.modules.normalization import Standardize
-from torchrl_mbe.modules.population import make_members_mlp
 
 __all__ = [
     "DynamicsModel",
@@ -314,7 +313,7 @@ class DynamicsModel(TensorDictModuleBase):
         Args:
             data (TensorDictBase or replay buffer): transitions holding the
                 observation and the next observation; a replay buffer (TorchRL's, or
-                a :class:`~torchrl_mbe.modules.population.PopulationReplayBuffer`) is read whole.
+                a :class:`~torchrl_mbe.app.replay.PopulationReplayBuffer`) is read whole.
 
         Keyword Args:
             next_observation_key (NestedKey): where the next observation is.

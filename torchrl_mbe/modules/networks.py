@@ -1,4 +1,9 @@
-"""Small network helpers shared by the Q-network, the policy network and the dynamics model."""
+"""Network helpers shared by the Q-network, the policy network and the dynamics model, single or a population's.
+
+A population's networks are TorchRL's ``MultiAgentMLP`` (``share_params=False``: one vmapped
+call over every member's parameters), reading ``[*B, M, F]``: the member dimension ``M`` is the last batch dimension, right before the
+features (docs/architecture.md, "Where the member dimension lives").
+"""
 
 from __future__ import annotations
 
@@ -7,9 +12,17 @@ from collections.abc import Callable, Sequence
 import torch
 from torch import nn
 from torchrl.data import TensorSpec
-from torchrl.modules import MLP, NoisyLinear
+from torchrl.modules import MLP, MultiAgentMLP, NoisyLinear, QValueActor
 
-__all__ = ["init_linear_layers", "make_per_action_mlp", "noisy_layers"]
+__all__ = [
+    "init_linear_layers",
+    "make_members_mlp",
+    "make_per_action_mlp",
+    "make_population_q_actor",
+    "member_state_dict",
+    "noisy_layers",
+    "reset_members_noise",
+]
 
 
 def noisy_layers(noise_std: float | None) -> dict:
@@ -83,3 +96,193 @@ def make_per_action_mlp(
         **noisy_layers(noise_std),
     )
     return init_linear_layers(network, init_weight, init_bias)
+
+
+def make_population_q_actor(
+    observation_size: int,
+    action_spec: TensorSpec,
+    num_cells: Sequence[int],
+    num_members: int,
+    *,
+    input_norm: nn.Module | None = None,
+    noise_std: float | None = None,
+    device: torch.device | str = "cpu",
+) -> QValueActor:
+    """A ``QValueActor`` over ``num_members`` independent Q-networks: ``[*B, M, F]`` observations to ``[*B, M, A]`` values.
+
+    The networks are :func:`make_members_mlp`'s (ReLU hidden layers ``num_cells``),
+    each member initialized as :func:`~torchrl_mbe.modules.make_per_action_mlp`
+    initializes the single Q-network; a population of one then starts from the
+    weights a single network built from the same seed starts from.
+
+    Args:
+        observation_size (int): features per member.
+        action_spec (TensorSpec): one member's discrete action spec (e.g. ``OneHot(A)``).
+        num_cells (sequence of int): hidden layer widths.
+        num_members (int): the population size ``M``.
+
+    Keyword Args:
+        input_norm (nn.Module, optional): applied to the observations first (a
+            :class:`~torchrl_mbe.modules.Standardize` of shape ``(M, F)``: one set of statistics per member).
+        noise_std (float, optional): NoisyNet members (see :func:`make_members_mlp`).
+        device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import OneHot
+        >>> from torchrl_mbe.modules.networks import make_population_q_actor
+        >>> actor = make_population_q_actor(2, OneHot(3), [16], num_members=4)
+        >>> out = actor(TensorDict(observation=torch.zeros(5, 4, 2), batch_size=[5, 4]))
+        >>> out["action_value"].shape, out["action"].shape
+        (torch.Size([5, 4, 3]), torch.Size([5, 4, 3]))
+        >>> actor.module[0].params["0", "weight"].shape  # [M, hidden, features]
+        torch.Size([4, 16, 2])
+    """
+    network = make_members_mlp(
+        observation_size, action_spec.space.n, num_cells, num_members, noise_std=noise_std, device=device
+    )
+    if input_norm is not None:
+        network = nn.Sequential(input_norm, network)
+    return QValueActor(network, spec=action_spec, in_keys=["observation"])
+
+
+def make_members_mlp(
+    in_features: int,
+    out_features: int,
+    num_cells: Sequence[int],
+    num_members: int,
+    *,
+    activation_class: type[nn.Module] = nn.ReLU,
+    noise_std: float | None = None,
+    glorot: bool = True,
+    device: torch.device | str | None = "cpu",
+) -> MultiAgentMLP:
+    """``num_members`` independent MLPs as one TorchRL ``MultiAgentMLP``: ``[*B, M, in_features]`` to ``[*B, M, out_features]``.
+
+    ``MultiAgentMLP(share_params=False, centralized=False)`` stacks the members'
+    parameters along a leading member dimension (``network.params``, e.g.
+    ``("0", "weight")`` of shape ``[M, num_cells[0], in_features]``). Each member's
+    slice is initialized as :func:`~torchrl_mbe.modules.init_linear_layers`
+    initializes a single MLP (Glorot-uniform weights, the paper's Keras
+    initialization, and zero biases), layer by layer and member by member from
+    torch's global generator; with ``glorot=False`` each member keeps torch's default
+    ``Linear`` initialization (a TorchRL ``MLP``'s). With ``noise_std`` the layers are TorchRL's
+    ``NoisyLinear`` (each member a NoisyNet, its noise starting at that scale),
+    which keep their own initialization; resample their noise with
+    :func:`reset_members_noise`.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules.networks import make_members_mlp
+        >>> network = make_members_mlp(3, 2, [8], num_members=4)
+        >>> network(torch.zeros(5, 4, 3)).shape, network.params["0", "weight"].shape
+        (torch.Size([5, 4, 2]), torch.Size([4, 8, 3]))
+    """
+    network = MultiAgentMLP(
+        n_agent_inputs=in_features,
+        n_agent_outputs=out_features,
+        n_agents=num_members,
+        centralized=False,
+        share_params=False,
+        num_cells=list(num_cells),
+        activation_class=activation_class,
+        device=device,
+        **noisy_layers(noise_std),
+    )
+    if not glorot:
+        return network
+    # get_stateful_net puts the stacked parameters themselves into a copy of one member's MLP
+    # (MultiAgentNetBase's documented way to re-initialize them in place).
+    with torch.no_grad():
+        init_linear_layers(
+            network.get_stateful_net(),
+            _each_member(nn.init.xavier_uniform_),
+            _each_member(nn.init.zeros_),
+        )
+    return network
+
+
+def reset_members_noise(module: nn.Module) -> None:
+    """Resamples the factorized noise of every ``NoisyLinear`` layer of a ``MultiAgentMLP``, each member's on its own.
+
+    ``NoisyLinear.reset_noise`` on the stacked network would reach only its
+    parameter-less template; this draws, for each member and layer, the
+    ``f(x) = sign(x) sqrt(|x|)`` noise of TorchRL's ``reset_noise`` (Fortunato et
+    al.'s factorized Gaussian) into the ``[M, ...]`` buffers in place, so the
+    losses that hold them see the new sample. Pass it to ``module.apply`` as
+    TorchRL's ``reset_noise``; modules other than a ``MultiAgentMLP`` are left alone.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.envs.utils import ExplorationType, set_exploration_type
+        >>> from torchrl_mbe.modules.networks import make_members_mlp, reset_members_noise
+        >>> network = make_members_mlp(3, 2, [8], num_members=4, noise_std=0.5)
+        >>> with set_exploration_type(ExplorationType.RANDOM):
+        ...     before = network(torch.ones(4, 3))
+        ...     _ = network.apply(reset_members_noise)
+        ...     after = network(torch.ones(4, 3))
+        >>> bool((before != after).all(-1).all())  # every member's output moved
+        True
+    """
+    if not isinstance(module, MultiAgentMLP):
+        return
+    for layer in module.params.values():
+        if "weight_epsilon" not in layer.keys():
+            continue
+        members, out_features, in_features = layer["weight_epsilon"].shape
+        noise_in, noise_out = (
+            _factorized_noise(members, size, layer["weight_epsilon"]) for size in (in_features, out_features)
+        )
+        layer["weight_epsilon"].copy_(noise_out[:, :, None] * noise_in[:, None, :])
+        layer["bias_epsilon"].copy_(noise_out)
+
+
+def _factorized_noise(members: int, size: int, like: torch.Tensor) -> torch.Tensor:
+    """``[members, size]`` draws of ``sign(x) sqrt(|x|)``, ``x`` standard normal (``NoisyLinear._scale_noise``, per member)."""
+    x = torch.randn(members, size, device=like.device, dtype=like.dtype)
+    return x.sign() * x.abs().sqrt()
+
+
+def _each_member(init: Callable[[torch.Tensor], torch.Tensor]) -> Callable[[torch.Tensor], torch.Tensor]:
+    """Applies ``init`` to every member's slice of a stacked ``[M, ...]`` tensor (fan-in and fan-out are a member's)."""
+
+    def init_each_member(stacked: torch.Tensor) -> torch.Tensor:
+        for member in range(stacked.shape[0]):
+            init(stacked[member])
+        return stacked
+
+    return init_each_member
+
+
+def member_state_dict(population_state: dict[str, torch.Tensor], member: int) -> dict[str, torch.Tensor]:
+    """Member ``member``'s slice of a population module's ``state_dict``, keyed as the single module's.
+
+    A population module is the single module with each ``MultiAgentMLP`` in place of
+    its ``MLP`` (parameters under ``params``, stacked ``[M, ...]``) and statistics of
+    shape ``[M, ...]`` (:class:`~torchrl_mbe.modules.Standardize` ``(M, F)``): a
+    member's entry is the ``[member]`` slice of every tensor, its key without
+    ``params.``. The result loads into the single module (``make_q_actor``'s
+    ``QValueActor`` for :func:`make_population_q_actor`'s), so a member's policy is
+    saved and read as a single run's.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import OneHot
+        >>> from torchrl.modules import QValueActor
+        >>> from torchrl_mbe.modules import make_per_action_mlp
+        >>> from torchrl_mbe.modules.networks import make_population_q_actor, member_state_dict
+        >>> population = make_population_q_actor(2, OneHot(3), [16], num_members=4)
+        >>> single = QValueActor(make_per_action_mlp(2, OneHot(3), [16]), spec=OneHot(3), in_keys=["observation"])
+        >>> _ = single.load_state_dict(member_state_dict(population.state_dict(), 2))
+        >>> states = torch.randn(5, 4, 2)
+        >>> values = population(TensorDict(observation=states, batch_size=[5, 4]))["action_value"][:, 2]
+        >>> torch.allclose(single(TensorDict(observation=states[:, 2], batch_size=[5]))["action_value"], values)
+        True
+    """
+    return {
+        key.replace("params.", ""): value[member].clone()
+        for key, value in population_state.items()
+        if not value.is_meta  # a NoisyLinear template's buffers: MultiAgentMLP keeps them on the meta device
+    }
