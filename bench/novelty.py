@@ -24,13 +24,12 @@ test: it prints a table and asserts nothing.
 from __future__ import annotations
 
 import argparse
-import math
 import os
-import statistics
 import time
 from collections.abc import Callable, Sequence
 
 import torch
+from timing import median_seconds, print_rows
 
 from torchrl_mbe import RollingGaussianDensity
 
@@ -75,25 +74,6 @@ def planning_step(density: RollingGaussianDensity) -> Callable[[], None]:
     return update_and_score
 
 
-def seconds_of(call: Callable[[], None], calls: int) -> float:
-    start = time.perf_counter()
-    for _ in range(calls):
-        call()
-    return (time.perf_counter() - start) / calls
-
-
-def median_seconds(variants: dict[str, Callable[[], None]]) -> dict[str, float]:
-    """Median seconds per call of each variant, in alternating blocks of at least ``MIN_BLOCK_S`` after a warm-up call."""
-    warm_up = {name: seconds_of(variant, 1) for name, variant in variants.items()}
-    repeated = {name: variant for name, variant in variants.items() if warm_up[name] <= SLOW_CALL_S}
-    calls_per_block = {name: max(1, math.ceil(MIN_BLOCK_S / warm_up[name])) for name in repeated}
-    seconds = {name: [] for name in repeated}
-    for _ in range(REPEATS):
-        for name, variant in repeated.items():
-            seconds[name].append(seconds_of(variant, calls_per_block[name]))
-    return warm_up | {name: statistics.median(values) for name, values in seconds.items()}
-
-
 def fit_megabytes(density: RollingGaussianDensity) -> float:
     """Size of the buffers the fit caches (all but the window and its counters)."""
     window_buffers = {"states", "num_seen", "fit_stale"}
@@ -101,19 +81,17 @@ def fit_megabytes(density: RollingGaussianDensity) -> float:
     return sum(buffer.numel() * buffer.element_size() for buffer in fit) / 2**20
 
 
-def print_rows(title: str, header: Sequence[str], rows: list[Sequence[str]]) -> None:
-    widths = [max(len(cell) for cell in column) for column in zip(header, *rows)]
-    print(f"\n[{title}]")
-    for row in (header, *rows):
-        print("  " + "  ".join(cell.rjust(width) for cell, width in zip(row, widths)))
-
-
 def bench_refit(features: Sequence[int]) -> None:
     rows = []
     for num_features in features:
         dense = DenseFit(num_features, window=WINDOW, batch_shape=(NUM_ENVS,))
         low_rank = LowRankFit(num_features, window=WINDOW, batch_shape=(NUM_ENVS,))
-        seconds = median_seconds({"dense": planning_step(dense), "low-rank": planning_step(low_rank)})
+        seconds = median_seconds(
+            {"dense": planning_step(dense), "low-rank": planning_step(low_rank)},
+            repeats=REPEATS,
+            min_block_s=MIN_BLOCK_S,
+            slow_call_s=SLOW_CALL_S,
+        )
         used = "low-rank" if RollingGaussianDensity(num_features, window=WINDOW)._fits_low_rank() else "dense"
         rows.append(
             (

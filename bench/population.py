@@ -24,14 +24,13 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
-import math
 import os
-import statistics
 import time
 from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDict
+from timing import median_seconds, print_rows
 from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
@@ -124,31 +123,6 @@ def in_sequence(calls: list[Callable[[], object]]) -> Callable[[], None]:
     return call_each
 
 
-def median_seconds(variants: dict[str, Callable[[], object]]) -> dict[str, float]:
-    """Median seconds per call of each variant, in alternating blocks of at least ``MIN_BLOCK_S`` after warm-up."""
-    calls_per_block = {}
-    for name, variant in variants.items():
-        variant()
-        start = time.perf_counter()
-        variant()
-        calls_per_block[name] = max(1, math.ceil(MIN_BLOCK_S / (time.perf_counter() - start)))
-    seconds = {name: [] for name in variants}
-    for _ in range(REPEATS):
-        for name, variant in variants.items():
-            start = time.perf_counter()
-            for _ in range(calls_per_block[name]):
-                variant()
-            seconds[name].append((time.perf_counter() - start) / calls_per_block[name])
-    return {name: statistics.median(values) for name, values in seconds.items()}
-
-
-def print_rows(title: str, header: Sequence[str], rows: list[Sequence[str]]) -> None:
-    widths = [max(len(cell) for cell in column) for column in zip(header, *rows)]
-    print(f"\n[{title}]")
-    for row in (header, *rows):
-        print("  " + "  ".join(cell.rjust(width) for cell, width in zip(row, widths)))
-
-
 def bench_updates() -> None:
     rows = []
     for hidden in HIDDEN_LAYERS:
@@ -160,7 +134,10 @@ def bench_updates() -> None:
                 {
                     "population": population_update(num_members, hidden),
                     "singles": in_sequence([single_update(hidden) for _ in range(num_members)]),
-                }
+                },
+                repeats=REPEATS,
+                warmup=2,
+                min_block_s=MIN_BLOCK_S,
             )
             population_ms, singles_ms = 1e3 * seconds["population"], 1e3 * seconds["singles"]
             lone_single_ms = lone_single_ms or singles_ms / num_members
@@ -193,7 +170,10 @@ def bench_sampling() -> None:
                 "population": functools.partial(population.sample, BATCH_SIZE),
                 "separate": in_sequence([functools.partial(buffer.sample, BATCH_SIZE) for buffer in separate]),
                 "shared rows": functools.partial(shared_rows.sample, BATCH_SIZE),
-            }
+            },
+            repeats=REPEATS,
+            warmup=2,
+            min_block_s=MIN_BLOCK_S,
         )
         rows.append(
             (str(num_members), *(f"{1e3 * seconds[name]:.3f}" for name in ("population", "separate", "shared rows")))

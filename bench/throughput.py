@@ -30,7 +30,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -75,6 +74,8 @@ LOOP_ALONE = (
     "train.episodes=1000000",
     "train.stop_when_solved=false",
 )
+from timing import median_seconds
+
 """Overrides that leave the training loop alone: no logging, evaluation or early stop."""
 
 
@@ -147,28 +148,6 @@ class Measurement:
     unit: str
 
 
-def seconds_per_call(
-    fns: dict[str, Callable[[], object]], *, warmup: int, repeats: int, calls: int
-) -> dict[str, float]:
-    """Median wall time of one call of each function.
-
-    After ``warmup`` untimed calls of each, ``repeats`` rounds time a block of
-    ``calls`` calls of every function in turn, so that a change of machine load
-    during the run hits the variants being compared alike.
-    """
-    for fn in fns.values():
-        for _ in range(warmup):
-            fn()
-    blocks = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            start = time.perf_counter()
-            for _ in range(calls):
-                fn()
-            blocks[name].append((time.perf_counter() - start) / calls)
-    return {name: statistics.median(times) for name, times in blocks.items()}
-
-
 def q_actor(spec: OneHot) -> QValueActor:
     """The paper's Q-network: one hidden layer of 48 ReLU units."""
     network = MLP(out_features=spec.space.n, num_cells=[48], activation_class=nn.ReLU)
@@ -192,7 +171,7 @@ def egreedy_policy(actor: QValueActor, spec: OneHot, eps: float = 1.0) -> Tensor
 def bench_gym_stepping(budget: Budget) -> list[Measurement]:
     """(a) gymnasium's MountainCar-v0 stepped with random actions: the physical reference."""
     step = gymnasium_random_step("MountainCar-v0")
-    timing = seconds_per_call({"step": step}, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls * 20)
+    timing = median_seconds({"step": step}, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls * 20)
     return [Measurement("gym", "gymnasium MountainCar-v0 env.step", 1 / timing["step"], "steps/s")]
 
 
@@ -230,7 +209,7 @@ def bench_gym_batch(budget: Budget) -> list[Measurement]:
             env.set_seed(0)
             label = f"{name}, {num_copies} copies {tuple(env.batch_size)}"
             steps[label], copies[label] = batch_random_step(env), num_copies
-    timing = seconds_per_call(steps, warmup=budget.warmup // 10, repeats=budget.repeats, calls=budget.calls // 5)
+    timing = median_seconds(steps, warmup=budget.warmup // 10, repeats=budget.repeats, calls=budget.calls // 5)
     return [Measurement("gym_batch", name, copies[name] / seconds, "env-steps/s") for name, seconds in timing.items()]
 
 
@@ -269,7 +248,7 @@ def bench_exploration_step(budget: Budget) -> list[Measurement]:
         }
         label = f"batch {batch}" + (", greedy step (eps=0)" if eps == 0 else "")
         with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
-            timing = seconds_per_call(
+            timing = median_seconds(
                 {name: functools.partial(call_on_next, policy, inputs) for name, policy in policies.items()},
                 warmup=budget.warmup,
                 repeats=budget.repeats,
@@ -312,7 +291,7 @@ def planned_step_parts(budget: Budget, spec: OneHot, low: torch.Tensor, high: to
         "of the actor call: TensorDict.from_any(tensor)": functools.partial(TensorDict.from_any, predictions),
     }
     with torch.no_grad():
-        timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+        timing = median_seconds(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     return [Measurement("exploration", name, seconds * 1e3, "ms/call") for name, seconds in timing.items()]
 
 
@@ -331,7 +310,7 @@ def bench_collection(budget: Budget) -> list[Measurement]:
         frames_per_batch[name] = budget.collector_steps * num_envs
         collectors.append(Collector(env, policy, frames_per_batch=frames_per_batch[name], total_frames=-1))
         next_batch[name] = functools.partial(next, iter(collectors[-1]))
-    timing = seconds_per_call(next_batch, warmup=1, repeats=budget.repeats, calls=budget.collector_batches)
+    timing = median_seconds(next_batch, warmup=1, repeats=budget.repeats, calls=budget.collector_batches)
     for collector in collectors:
         collector.shutdown()
     return [
@@ -573,7 +552,7 @@ def bench_loop_breakdown(budget: Budget) -> list[Measurement]:
         "dynamics update (sample 64, DynamicsLoss, Adam)": functools.partial(agent.explorer.training.update, buffer),
         "dynamics error on the new frame": functools.partial(agent.explorer.observe, frame),
     }
-    timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+    timing = median_seconds(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     for collector in collectors.values():
         collector.shutdown()
     return [Measurement("breakdown", name, seconds * 1e3, "ms/frame") for name, seconds in timing.items()]
@@ -620,7 +599,7 @@ def bench_updates(budget: Budget) -> list[Measurement]:
     parts["  of which: buffer.sample(256), plain reference"] = functools.partial(
         plain_buffer.sample, cfg.algo.batch_size, plain.rng
     )
-    timing = seconds_per_call(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
+    timing = median_seconds(parts, warmup=budget.warmup, repeats=budget.repeats, calls=budget.calls)
     results = [Measurement("updates", name, seconds * 1e3, "ms/update") for name, seconds in timing.items()]
     for update in ("Q update", "dynamics update"):
         for name in agents:
