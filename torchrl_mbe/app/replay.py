@@ -9,7 +9,8 @@ from typing import ClassVar
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
-from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32
+from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32  # private: a prioritized sampler's trees are C++
+# objects in its state_dict, which torch.load(weights_only=True) refuses; rebuilt here from their leaves (pytorch/rl#3056)
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, MultiStepTransform
 
@@ -202,6 +203,8 @@ class ReplayTransitions:
 
     def state_dict(self) -> dict:
         """The frames held back for the next batch's n-step windows (none with ``n_steps=1``)."""
+        # Private: MultiStepTransform keeps the frames held back for the next batch's windows outside its
+        # state_dict (no public accessor; no upstream issue filed yet).
         held_back = self.multistep._buffer if self.multistep is not None else None
         if held_back is None:
             return {"held_back": None}

@@ -59,6 +59,8 @@ class CollectorState:
     def state_dict(self) -> dict:
         if not self.env.exact:
             return {}
+        # Private: the collector's carrier (the next step's input) is outside Collector.state_dict
+        # (pytorch/rl#4230's review: step counters and simulator state are not restored).
         return {"env": self.env.state_dict(), "carrier": self.collector._carrier.exclude(*_CARRIER_OWN_KEYS).to_dict()}
 
     def load_state_dict(self, state: dict) -> None:

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl._utils import seed_generator
+from torchrl._utils import seed_generator  # private: the seed sequence SerialEnv gives its copies has no public name
 from torchrl.envs import EnvBase, GymWrapper
 
 from torchrl_mbe.envs.observations import make_gymnasium

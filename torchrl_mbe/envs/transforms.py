@@ -32,6 +32,8 @@ class PopulationRNDTransform(RNDTransform):
     """
 
     def _maybe_init_rms(self, obs: torch.Tensor) -> None:
+        # Private hook: RNDTransform fixes its statistics' shape to the features and offers no public
+        # option for one set per group of the batch (no upstream issue filed yet).
         members = obs.shape[-2]
         if self.normalize_obs and self._obs_rms is None:
             self._obs_rms = RunningMeanStd(shape=obs.shape[-2:]).to(obs.device)
