@@ -9,8 +9,7 @@ from typing import ClassVar
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
-from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32  # private: a prioritized sampler's trees are C++
-# objects in its state_dict, which torch.load(weights_only=True) refuses; rebuilt here from their leaves (pytorch/rl#3056)
+from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32  # private: see ReplayState
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
 from torchrl.envs import EnvBase, MultiStepTransform
 
@@ -99,7 +98,9 @@ class ReplayState:
     """A replay buffer's state for a checkpoint, in tensors and plain containers only (it loads with ``weights_only``).
 
     TorchRL's ``state_dict`` of a prioritized buffer holds its segment trees as
-    C++ objects; they are kept here as the tensors of their leaves and rebuilt on load.
+    C++ objects, which ``torch.load(weights_only=True)`` refuses and TorchRL offers no
+    tensor form of (pytorch/rl#3056); they are kept here as the tensors of their leaves
+    and rebuilt on load from its private ``torchrl._torchrl`` classes.
 
     Examples:
         >>> import torch
