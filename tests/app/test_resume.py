@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from torchrl_mbe.app import ConfigError, train
-from torchrl_mbe.app.run import load_safely
+from torchrl_mbe.app.checkpoints import load_safely
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY
 
 HERE = Path(__file__).parent

@@ -32,13 +32,14 @@ from torchrl.collectors import Collector
 from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
+from torchrl_mbe.app.checkpoints import CHECKPOINT_FORMAT, read_checkpoint, refuse_to_overwrite, save_atomically
 from torchrl_mbe.app.config import ConfigError, seeds_name
 from torchrl_mbe.app.dqn import DQNAgent, build_dqn_agent
+from torchrl_mbe.app.evaluation import evaluate_members
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.replay import PopulationReplayBuffer, ReplayTransitions, check_replay_fits
 from torchrl_mbe.app.rollout import CollectorState, EnvState
 from torchrl_mbe.app.run import (
-    CHECKPOINT_FORMAT,
     Progress,
     Resumable,
     Run,
@@ -48,15 +49,11 @@ from torchrl_mbe.app.run import (
     close_run,
     confirmed_now,
     crossed,
-    evaluate_members,
     keep_in_checkpoints,
     make_run_env,
     note_evaluation,
-    read_checkpoint,
     record_frames,
     record_updates,
-    refuse_to_overwrite,
-    save_atomically,
     summary_line,
 )
 from torchrl_mbe.envs import resolve_env_id

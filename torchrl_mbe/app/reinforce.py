@@ -49,6 +49,7 @@ from torchrl.modules import OneHotCategorical, ProbabilisticActor
 from torchrl.objectives import ReinforceLoss
 from torchrl.objectives.value.functional import reward2go
 
+from torchrl_mbe.app.evaluation import play_episode
 from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.app.run import (
@@ -58,7 +59,6 @@ from torchrl_mbe.app.run import (
     keep_in_checkpoints,
     make_run_env,
     open_run,
-    play_episode,
     record_frames,
 )
 from torchrl_mbe.modules import make_per_action_mlp

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import logging
-import re
 import signal
 import threading
 import time
@@ -26,19 +25,24 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
-from torchrl.envs import EnvBase, ExplorationType, set_exploration_type
+from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
-from torchrl_mbe.app.config import ConfigError, config_differences, config_id, method_name, with_size
+from torchrl_mbe.app.checkpoints import (
+    CHECKPOINT_FORMAT,
+    read_checkpoint,
+    refuse_to_overwrite,
+    save_atomically,
+)
+from torchrl_mbe.app.config import config_id, method_name, with_size
+from torchrl_mbe.app.evaluation import evaluate
 from torchrl_mbe.app.explorers import logged_counters
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.observation import env_options
 from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.envs import (
     finished_episodes,
-    first_episodes,
     make_env,
-    play_first_episodes,
     reached_goal,
     resolve_env_id,
 )
@@ -46,7 +50,6 @@ from torchrl_mbe.envs.registry import SolvedRule, solved_rule
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, UPDATE_COUNTERS, VISITED_EPISODES, VISITED_STATES
 
 __all__ = [
-    "CHECKPOINT_FORMAT",
     "Agent",
     "Progress",
     "Resumable",
@@ -57,28 +60,19 @@ __all__ = [
     "close_run",
     "confirmed_now",
     "crossed",
-    "evaluate",
     "evaluate_and_checkpoint_if_due",
-    "evaluate_members",
     "finish_run",
     "keep_in_checkpoints",
     "log_evaluation",
     "make_run_env",
     "note_evaluation",
     "open_run",
-    "play_episode",
-    "read_checkpoint",
     "record_frames",
     "record_updates",
-    "refuse_to_overwrite",
-    "save_atomically",
 ]
 
 log = logging.getLogger(__name__)
 tqdm.set_lock(threading.RLock())  # tqdm's default lock is a multiprocessing semaphore, left behind by a killed run
-
-CHECKPOINT_FORMAT = 3
-"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2)."""
 
 
 class Resumable(Protocol):
@@ -220,35 +214,6 @@ def _progress_bar(cfg: DictConfig, progress: Progress) -> tqdm:
         unit_scale=frames_budget,
         disable=None if cfg.progress_bar else True,
     )
-
-
-def refuse_to_overwrite(run_dir: Path) -> None:
-    """One line, unless ``run_dir`` holds no checkpoint: a new run never overwrites one."""
-    if (run_dir / CHECKPOINT).exists():
-        raise ConfigError(
-            f"{run_dir} already holds a run. Pass resume=true to continue it, "
-            "or choose another directory (hydra.run.dir=... or another tag/seed)."
-        )
-
-
-def read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
-    """The checkpoint to resume from, refused with one line if it is missing, unreadable, or of another version or config."""
-    checkpoint_path = run_dir / CHECKPOINT
-    if not checkpoint_path.exists():
-        raise ConfigError(f"resume=true but {checkpoint_path} does not exist: nothing to resume.")
-    checkpoint = load_safely(checkpoint_path)
-    if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
-        found = checkpoint.get("format", 1) if isinstance(checkpoint, dict) else "unknown"
-        raise ConfigError(
-            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2); this version "
-            f"reads format {CHECKPOINT_FORMAT} only. Start a new run in another directory."
-        )
-    differences = config_differences(checkpoint["config"], cfg)
-    if differences:
-        raise ConfigError(
-            f"The checkpoint in {run_dir} was made with another config; differing keys: " + "; ".join(differences)
-        )
-    return checkpoint
 
 
 def _restore(checkpoint: dict, agent: Agent) -> Progress:
@@ -417,42 +382,6 @@ def _final_evaluation(run: Run) -> dict:
     return evaluate(run.agent.actor, final_env, run.env_id)
 
 
-def evaluate(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> dict:
-    """Greedy (``ExplorationType.DETERMINISTIC``) returns of one episode in each copy of a batched ``env``.
-
-    All copies step together until each has finished one episode (one rollout,
-    whatever the number of episodes).
-    """
-    return _episode_results(_greedy_rollout(actor, env), env_id)
-
-
-def evaluate_members(actor: TensorDictModuleBase, env: EnvBase, env_id: str) -> list[dict]:
-    """:func:`evaluate` of each member of a population ``actor`` in a ``(episodes, M)`` env, in one rollout."""
-    rollout = _greedy_rollout(actor, env)
-    return [_episode_results(rollout[:, member], env_id) for member in range(rollout.shape[1])]
-
-
-def _greedy_rollout(actor: TensorDictModuleBase, env: EnvBase) -> TensorDictBase:
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        return play_first_episodes(env, actor)
-
-
-def _episode_results(rollout: TensorDictBase, env_id: str) -> dict:
-    """Mean and spread of the returns, and the success rate, of the first episode of each env of ``rollout`` (``(envs, time)``)."""
-    episodes = first_episodes(rollout)
-    returns = [episode.episode_return for episode in episodes]
-    return {
-        "eval_return_mean": float(np.mean(returns)),
-        "eval_return_std": float(np.std(returns)),
-        "eval_success_rate": float(np.mean([reached_goal(env_id, episode) for episode in episodes])),
-    }
-
-
-def play_episode(env: EnvBase, policy: TensorDictModuleBase) -> TensorDictBase:
-    """One whole episode of ``policy`` in a single ``env``, shape ``(steps,)``, under the caller's exploration type."""
-    return env.rollout(max_steps=100_000, policy=policy, break_when_any_done=True)
-
-
 def log_evaluation(result: dict, run: Run) -> None:
     """A row of the evaluations table, and the log line."""
     progress = run.progress
@@ -472,55 +401,6 @@ def save_checkpoint(run: Run) -> None:
         "torch_rng": torch.get_rng_state(),
     }
     save_atomically(checkpoint, run.run_dir / CHECKPOINT)
-
-
-def save_atomically(state: dict, path: Path) -> None:
-    """``torch.save`` through a ``.partial`` file: a crash mid-write keeps the previous file whole."""
-    partial = path.with_name(path.name + ".partial")
-    torch.save(state, partial)
-    partial.replace(path)
-
-
-def load_safely(path: Path) -> dict:
-    """A checkpoint or best policy, read with ``weights_only=True``: tensors and plain containers, never code.
-
-    Raises:
-        ConfigError: one line naming the file, if it is truncated, foreign, or
-            holds anything a weights-only load refuses (a pickled callable, say).
-
-    Examples:
-        >>> import tempfile, torch
-        >>> from pathlib import Path
-        >>> from torchrl_mbe.app.run import load_safely
-        >>> path = Path(tempfile.mkdtemp()) / "policy.pt"
-        >>> torch.save({"actor": {"weight": torch.zeros(2)}, "frames": 10}, path)
-        >>> load_safely(path)["frames"]
-        10
-        >>> torch.save({"actor": print}, path)  # a callable: loading it would run code
-        >>> load_safely(path)  # doctest: +ELLIPSIS
-        Traceback (most recent call last):
-        ...
-        torchrl_mbe.app.settings.ConfigError: Refusing .../policy.pt: it holds print, which a weights-only load does not run (only tensors and plain containers are read).
-    """
-    try:
-        return torch.load(path, weights_only=True)
-    except Exception as error:  # noqa: BLE001 (torch.load raises many types; each becomes one line naming the file)
-        code = re.search(r"Unsupported global: GLOBAL (\S+)", str(error))
-        if code is not None:
-            raise ConfigError(
-                f"Refusing {path}: it holds {code.group(1)}, which a weights-only load does not run "
-                "(only tensors and plain containers are read)."
-            ) from None
-        raise ConfigError(f"Cannot read {path} (truncated, or not a torchrl-mbe file): {_reason(error)}") from None
-
-
-def _reason(error: Exception) -> str:
-    """The line of a ``torch.load`` error that says what was wrong (its messages wrap it in advice)."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
-    unpickler = next((i for i, line in enumerate(lines) if line.endswith("WeightsUnpickler error:")), None)
-    if unpickler is not None and unpickler + 1 < len(lines):
-        return lines[unpickler + 1]
-    return lines[0].split(". ")[0] if lines else type(error).__name__
 
 
 def finish_run(run: Run, interrupt: StopOnInterrupt) -> dict:
