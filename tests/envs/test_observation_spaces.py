@@ -11,7 +11,7 @@ from torchrl.envs import DoubleToFloat, GymEnv, TransformedEnv
 from torchrl.envs.utils import RandomPolicy
 
 from torchrl_mbe import make_env
-from torchrl_mbe.envs.observations import MAX_OBSERVATION_SIZE
+from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE
 
 THREE_ACTIONS = spaces.Discrete(3)
 
@@ -104,6 +104,15 @@ def test_a_box_of_floats_is_read_as_torchrl_reads_it_so_mountaincar_steps_as_bef
             td = env.step_mdp(td) if not td["next", "done"] else env.reset()
         env.observations = torch.stack(observations)
     assert torch.equal(ours.observations, torchrl.observations)
+
+
+def test_a_task_without_a_time_limit_gets_one_and_the_callers_own_wins():
+    def episode_length(env) -> int:  # always "up": CliffWalking's agent walks into the top wall and stays there
+        up = env.action_spec.encode(torch.tensor(0))
+        return env.rollout(5000, lambda td: td.set("action", up), break_when_any_done=True).shape[-1]
+
+    assert episode_length(make_env("CliffWalking-v1")) == MAX_EPISODE_STEPS
+    assert episode_length(make_env("CliffWalking-v1", max_episode_steps=50)) == 50
 
 
 def _suite_ids(*entry_point_prefixes: str) -> list[str]:

@@ -91,12 +91,9 @@ def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
         ...
         ValueError: Pendulum-v1 has a Box(-2.0, 2.0, (1,), float32) action space; model-based exploration plans over one discrete action set (a Discrete action space).
     """
+    time_limit = {"max_episode_steps": MAX_EPISODE_STEPS} if gym.spec(env_id).max_episode_steps is None else {}
     try:
-        env = gym.make(
-            env_id,
-            **({"max_episode_steps": MAX_EPISODE_STEPS} if gym.spec(env_id).max_episode_steps is None else {}),
-            **make_kwargs,
-        )
+        env = gym.make(env_id, **{**time_limit, **make_kwargs})  # the caller's max_episode_steps wins
     except TypeError as error:
         raise ValueError(f"{env_id} does not take the keyword arguments {make_kwargs} (gym.make: {error}).") from None
     except gym.error.DependencyNotInstalled as error:
