@@ -4,14 +4,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gymnasium as gym
 import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torchrl.envs import EnvBase
 
-from torchrl_mbe.envs.registry import task_of
+from torchrl_mbe.envs.registry import GoalRule, task_of
 
-__all__ = ["Episode", "finished_episodes", "first_episodes", "play_first_episodes", "reached_goal"]
+__all__ = ["Episode", "finished_episodes", "first_episodes", "goal_rule", "play_first_episodes", "reached_goal"]
 
 
 @dataclass(frozen=True)
@@ -25,7 +26,7 @@ class Episode:
 
 
 def reached_goal(env_id: str, episode: Episode) -> bool:
-    """Whether ``episode`` reached ``env_id``'s goal (its registry ``Task.goal``; the env's own termination by default).
+    """Whether ``episode`` reached ``env_id``'s goal: its registry ``Task.goal``, else :func:`goal_rule`'s.
 
     Examples:
         >>> from torchrl_mbe.envs.episodes import Episode, reached_goal
@@ -33,14 +34,29 @@ def reached_goal(env_id: str, episode: Episode) -> bool:
         True
         >>> reached_goal("LunarLander-v3", Episode(-250.0, 80, terminated=True, final_reward=-100.0))
         False
+        >>> reached_goal("FrozenLake-v1", Episode(0.0, 6, terminated=True, final_reward=0.0))  # a hole
+        False
     """
     task = task_of(env_id)
-    rule = task.goal if task is not None else "terminated"
+    rule = task.goal if task is not None else goal_rule(env_id)
     if rule == "truncated":
         return not episode.terminated
     if rule == "landed":
         return episode.terminated and episode.final_reward > 0
     return episode.terminated
+
+
+def goal_rule(env_id: str) -> GoalRule:
+    """The goal of a gymnasium task the registry does not know: ``"landed"`` (terminated with a positive last reward) when gymnasium's
+    ``reward_threshold`` is positive (FrozenLake's goal, Taxi's drop-off; not a hole or a crash), else its own termination.
+
+    Examples:
+        >>> from torchrl_mbe.envs.episodes import goal_rule
+        >>> goal_rule("FrozenLake-v1"), goal_rule("CliffWalking-v1")
+        ('landed', 'terminated')
+    """
+    threshold = gym.spec(env_id).reward_threshold
+    return "landed" if threshold is not None and threshold > 0 else "terminated"
 
 
 def finished_episodes(batch: TensorDictBase) -> list[Episode]:
