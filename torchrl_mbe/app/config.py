@@ -68,9 +68,8 @@ class EnvConfig:
     name: str = "mountaincar"  # a short name (conf/env/), any discrete-action gymnasium id, or module:EnvId
     num_envs: int = setting(1, POSITIVE_INT)  # >1: a batch of envs, one novelty window each
     size: Optional[int] = setting(None, POSITIVE_INT.or_none())  # env=deepsea: the grid's side N (bsuite: 10 to 50)
-    make_kwargs: Dict[str, Any] = field(
-        default_factory=dict
-    )  # gym.make's keyword arguments: +env.make_kwargs.is_slippery=false
+    # gym.make's keyword arguments: +env.make_kwargs.is_slippery=false
+    make_kwargs: Dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -82,9 +81,8 @@ class DQNConfig:
     gamma: float = setting(0.99, DISCOUNT)
     n_steps: int = setting(1, POSITIVE_INT)  # n-step returns (1: the paper)
     lr: float = setting(2e-3, POSITIVE)  # Adam
-    lr_decay_frames: Optional[int] = setting(
-        None, POSITIVE_INT.or_none()
-    )  # linear decay over these frames (after learning_starts)
+    # linear decay over these frames (after learning_starts)
+    lr_decay_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())
     lr_end_factor: float = setting(1.0, FRACTION)  # the learning rate ends at lr * lr_end_factor
     batch_size: int = setting(256, POSITIVE_INT)
     learning_starts: int = setting(1000, NON_NEGATIVE_INT)  # frames collected before the first update
@@ -124,9 +122,8 @@ class DynamicsConfig:
     updates_per_frame: float = setting(0.25, NON_NEGATIVE)
     max_grad_norm: Optional[float] = setting(10.0, POSITIVE.or_none())
     prior_scale: float = setting(0.0, NON_NEGATIVE)  # a frozen random network's weight in each prediction (0: none)
-    prior_num_cells: Optional[list[int]] = setting(
-        None, LAYERS.or_none()
-    )  # the prior's hidden layers (null: num_cells)
+    # the prior's hidden layers (null: num_cells)
+    prior_num_cells: Optional[list[int]] = setting(None, LAYERS.or_none())
     normalize: bool = True  # standardize inputs and deltas; false keeps raw units (one-hot observations)
     output: str = setting("delta", one_of(*OUTPUTS))  # categorical: a softmax over a one-hot observation's entries
 
@@ -158,9 +155,8 @@ class TrainConfig:
     max_frames: Optional[int] = setting(None, POSITIVE_INT.or_none())  # optional cap on frames
     checkpoint_every_frames: int = setting(20_000, POSITIVE_INT)
     save_visited_states: bool = False  # write visited_states.npy (the coverage experiment)
-    stop_when_solved: bool = (
-        False  # end at the first periodic evaluation at or above the solved threshold that eval.final_episodes confirm
-    )
+    # end at the first periodic evaluation at or above the solved threshold that eval.final_episodes confirm
+    stop_when_solved: bool = False
 
 
 @dataclass
@@ -184,18 +180,16 @@ class Config:
     train: TrainConfig = field(default_factory=TrainConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     seed: int = setting(0, NON_NEGATIVE_INT)
-    population: int = setting(
-        1, POSITIVE_INT
-    )  # >1: agents of seeds seed .. seed+population-1 trained as one batched program
+    # >1: agents of seeds seed .. seed+population-1 trained as one batched program
+    population: int = setting(1, POSITIVE_INT)
     device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
     tag: str = "default"  # part of the run directory; presets set their own
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
     progress_bar: bool = True
     torch_threads: Optional[int] = setting(1, POSITIVE_INT.or_none())  # null keeps torch's default
     compile: bool = False  # torch.compile the update step (falls back to eager if compilation fails)
-    match_observation: bool = (
-        True  # a one-hot observation gets the categorical model and visit counts (torchrl_mbe.app.observation)
-    )
+    # a one-hot observation gets the categorical model and visit counts (torchrl_mbe.app.observation)
+    match_observation: bool = True
 
 
 def register_configs() -> None:
@@ -217,9 +211,8 @@ def register_configs() -> None:
     for backend in BACKENDS:
         store.store(group="logger", name=backend, node=LoggerConfig(backend=backend))
     if not OmegaConf.has_resolver("method_name"):  # lets conf/ name run directories after the method
-        OmegaConf.register_new_resolver(
-            "method_name", lambda *, _root_: method_name(matched(_root_))
-        )  # the explorer its observation gets
+        # the method of the explorer its observation gets (torchrl_mbe.app.observation.matched)
+        OmegaConf.register_new_resolver("method_name", lambda *, _root_: method_name(matched(_root_)))
     if not OmegaConf.has_resolver("env_name"):  # ... and after the env, with its size
         OmegaConf.register_new_resolver("env_name", lambda *, _root_: with_size(_root_.env.name, _root_.env.size))
     if not OmegaConf.has_resolver("seeds"):  # ... and after the seed, or a population's seeds

@@ -294,9 +294,8 @@ class NoisyExplorer(Explorer):
 
     def __init__(self, policy: TensorDictModuleBase, num_members: int | None = None) -> None:
         super().__init__(policy)
-        self.reset_noise = (
-            reset_noise if num_members is None else reset_members_noise
-        )  # a population's noise is stacked [M, ...]
+        # a population's noise is stacked [M, ...]
+        self.reset_noise = reset_noise if num_members is None else reset_members_noise
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -318,9 +317,8 @@ class PlanningExploration(ExplorationConfig):
 
     window: int = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)"))
     horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
-    model_error_threshold: Optional[float] = setting(
-        None, NON_NEGATIVE.or_none()
-    )  # random until the model is this good
+    # random until the model is this good
+    model_error_threshold: Optional[float] = setting(None, NON_NEGATIVE.or_none())
 
 
 class DynamicsTraining:
@@ -507,15 +505,12 @@ class KernelExplorer(PlanningExplorer):
 @dataclass
 class DiagonalExploration(PlanningExploration):
     name: str = "diagonal"  # a Gaussian without correlations
-    window: Optional[int] = setting(
-        50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none()
-    )  # null: every visited state
-    min_variance: float = setting(
-        1e-8, POSITIVE
-    )  # each dimension's variance floor: predictions off it by less than its root look familiar
-    added_variance: float = setting(
-        0.0, NON_NEGATIVE
-    )  # added to each variance before the floor: keeps the order the floor ties
+    # null: every visited state
+    window: Optional[int] = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())
+    # each dimension's variance floor: predictions off it by less than its root look familiar
+    min_variance: float = setting(1e-8, POSITIVE)
+    # added to each variance before the floor: keeps the order the floor ties
+    added_variance: float = setting(0.0, NON_NEGATIVE)
 
 
 class DiagonalExplorer(PlanningExplorer):

@@ -288,9 +288,8 @@ def evaluate_and_checkpoint_if_due(population: Population, new_frames: int) -> N
     cfg = population.cfg
     if crossed(population.frames, new_frames, cfg.eval.every_frames) and cfg.eval.episodes:
         results = evaluate_members(population.agent.actor, population.eval_env, population.env_id)
-        final = functools.cache(
-            lambda: _final_evaluation(population)
-        )  # played once, if a member's result asks for confirmation
+        # played once, if a member's result asks for confirmation
+        final = functools.cache(lambda: _final_evaluation(population))
         for member, run in population.active():
             note_evaluation(run, results[member], confirm=lambda member=member: final()[member])
     if crossed(population.frames, new_frames, cfg.train.checkpoint_every_frames):

@@ -119,9 +119,10 @@ class GymBatchEnv(EnvBase):
 
     def _output(self, terminated: np.ndarray, truncated: np.ndarray) -> TensorDictBase:
         """A step's or reset's output: the observations and the ``(*batch_size, 1)`` flags, ``done`` = either."""
+        # torch.tensor copies the arrays: the two flags never share memory
         terminated, truncated = (
-            torch.tensor(flags, device=self.device).view(*self.batch_size, 1) for flags in (terminated, truncated)
-        )  # copies
+            torch.tensor(f, device=self.device).view(*self.batch_size, 1) for f in (terminated, truncated)
+        )
         return TensorDict(
             {
                 "observation": self._observation_tensor(),

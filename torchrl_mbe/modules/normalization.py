@@ -58,9 +58,8 @@ class Standardize(nn.Module):
         touch) keeps scale 1, as in scikit-learn's ``StandardScaler``: dividing by
         a floor would turn its first change into a value of millions.
         """
-        samples = samples.reshape(-1, *self.loc.shape).to(
-            self.loc.dtype
-        )  # integer samples too (a one-hot Discrete observation)
+        # integer samples too (a one-hot Discrete observation)
+        samples = samples.reshape(-1, *self.loc.shape).to(self.loc.dtype)
         if samples.shape[0] < 2:
             raise ValueError("Standardize.fit needs at least two samples.")
         std = samples.std(0)

@@ -86,13 +86,11 @@ class Run:
     tag: str | None = None  # the experiment the run belongs to (summaries of 0.1.0 lack both)
     config_id: str | None = None
     summary: dict = field(default_factory=dict)  # summary.json as written (see torchrl_mbe.rundir.SUMMARY_FIELDS)
-    eval_frames: np.ndarray = field(
-        default_factory=lambda: np.array([])
-    )  # evaluations.csv: when each greedy evaluation ran
+    # evaluations.csv: when each greedy evaluation ran
+    eval_frames: np.ndarray = field(default_factory=lambda: np.array([]))
     eval_returns: np.ndarray = field(default_factory=lambda: np.array([]))  # and its mean return
-    episode_frames: np.ndarray = field(
-        default_factory=lambda: np.array([])
-    )  # episodes.csv: frames at each episode's end
+    # episodes.csv: frames at each episode's end
+    episode_frames: np.ndarray = field(default_factory=lambda: np.array([]))
 
     @property
     def is_exploration(self) -> bool:

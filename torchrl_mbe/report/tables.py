@@ -288,9 +288,8 @@ def _env_section(env: str, runs: Sequence[Run], out_dir: Path, window: int, bins
         lines += _learning_section(learning, window)
         figure = plot_learning_curves(env, learning, colors, window, out_dir / f"learning_curves_{stem}.png")
         lines += _embed(figure, "learning curves", written)
-    exploration = group_runs(
-        [r for r in runs if r.is_exploration or r.visited_states is not None]
-    )  # learning runs too, if saved
+    # learning runs too, if saved
+    exploration = group_runs([r for r in runs if r.is_exploration or r.visited_states is not None])
     if exploration:
         lines += _exploration_section(exploration, bounds, fitted, window, bins)
         best = _best_runs(exploration, bounds, bins) if bounds is not None else {}
