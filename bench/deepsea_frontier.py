@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 from torchrl_mbe.app.checkpoints import load_safely
 from torchrl_mbe.app.config import ConfigError
 from torchrl_mbe.app.dqn import build_dqn_agent
-from torchrl_mbe.app.run import make_run_env
+from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.envs.deepsea import DeepSeaDynamics
 from torchrl_mbe.modules import DiagonalGaussianDensity
 

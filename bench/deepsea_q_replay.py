@@ -30,8 +30,9 @@ from omegaconf.errors import OmegaConfBaseException
 from tensordict import TensorDict, TensorDictBase
 
 from torchrl_mbe.app.dqn import DQNAgent, build_dqn_agent
+from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.replay import make_replay_buffer
-from torchrl_mbe.app.run import crossed, make_run_env
+from torchrl_mbe.app.run import crossed
 
 
 def main() -> None:

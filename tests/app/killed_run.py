@@ -16,37 +16,37 @@ from pathlib import Path
 
 import torch
 
-import torchrl_mbe.app.dqn as dqn_module
-import torchrl_mbe.app.run as run_module
+from torchrl_mbe.app import population as population_module
+from torchrl_mbe.app.population import Population
 
 TRAIN_SCRIPT = Path(__file__).resolve().parents[2] / "train.py"
 
 
 def kill_after_frames(frames: int) -> None:
-    record_frames = dqn_module.record_frames
+    record = Population.record
 
-    def record_then_maybe_die(run, batch, **kwargs):
-        record_frames(run, batch, **kwargs)
-        if run.progress.frames >= frames:
+    def record_then_maybe_die(population, batch, **kwargs):
+        record(population, batch, **kwargs)
+        if population.frames >= frames:
             os.kill(os.getpid(), signal.SIGKILL)
 
-    dqn_module.record_frames = record_then_maybe_die
+    Population.record = record_then_maybe_die
 
 
 def kill_while_writing_the_checkpoint(frames: int) -> None:
-    save_checkpoint = run_module.save_checkpoint
+    save_checkpoint = Population.save_checkpoint
 
-    def write_half_then_die(run):
-        if run.progress.frames < frames:
-            return save_checkpoint(run)
+    def write_half_then_die(population):
+        if population.frames < frames:
+            return save_checkpoint(population)
         whole = io.BytesIO()
-        run_module.save_atomically = lambda state, path: torch.save(state, whole)  # capture the bytes
-        save_checkpoint(run)
-        partial = run.run_dir / (run_module.CHECKPOINT + ".partial")
+        population_module.save_atomically = lambda state, path: torch.save(state, whole)  # capture the bytes
+        save_checkpoint(population)
+        partial = population.run_dir / (population_module.CHECKPOINT + ".partial")
         partial.write_bytes(whole.getvalue()[: len(whole.getvalue()) // 2])
         os.kill(os.getpid(), signal.SIGKILL)
 
-    run_module.save_checkpoint = write_half_then_die
+    Population.save_checkpoint = write_half_then_die
 
 
 if __name__ == "__main__":

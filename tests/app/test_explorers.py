@@ -26,7 +26,9 @@ def test_every_explorer_gives_the_loop_the_same_shape_and_its_state_survives_a_c
     assert isinstance(explorer, EXPLORERS[name]) and isinstance(explorer.policy, TensorDictModuleBase)
     batch = next(iter(Collector(env, explorer.policy, frames_per_batch=64, total_frames=-1)))
     buffer = make_replay_buffer(cfg.buffer, "cpu")
-    buffer.extend(ReplayTransitions(1, 0.99, intrinsic_coef=explorer.intrinsic_coef)(batch))
+    buffer.extend(
+        ReplayTransitions(1, 0.99, intrinsic_coef=explorer.intrinsic_coef, extra_keys=explorer.stored_keys)(batch)
+    )
     eps_before = agent.eps
     agent.learn(batch, buffer, frames=cfg.algo.learning_starts + 64)  # past learning_starts: Q updates run
     assert agent.q_updates == 16 and isinstance(agent.eps, float) and agent.eps <= eps_before

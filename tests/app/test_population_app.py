@@ -14,9 +14,9 @@ from torchrl_mbe.app import ConfigError, check_config, train
 from torchrl_mbe.app.checkpoints import load_safely
 from torchrl_mbe.app.config import config_id
 from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
+from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.explorers import RNDExplorer, logged_columns
 from torchrl_mbe.app.replay import PopulationReplayBuffer, ReplayTransitions
-from torchrl_mbe.app.run import make_run_env
 from torchrl_mbe.modules import Standardize
 from torchrl_mbe.report.runs import load_runs
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, table_file, tables
@@ -157,6 +157,7 @@ def test_a_noisy_populations_q_update_resamples_every_members_noise(compose_conf
         (("population=0",), "population=0: expected a positive integer"),
         (("population=2", "buffer=prioritized"), "use buffer=uniform or population=1"),
         (("population=2", "algo=reinforce"), "only algo=dqn trains populations"),
+        (("population=2", "exploration=bootstrap"), "exploration=bootstrap trains one ensemble per run"),
     ],
 )
 def test_a_population_it_cannot_train_is_refused_in_one_line_naming_the_setting(overrides, named, compose_config):

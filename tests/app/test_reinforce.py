@@ -98,7 +98,7 @@ def test_ctrl_c_then_resume_continues_a_reinforce_run(tmp_path, monkeypatch, rea
     with pytest.raises(SystemExit, match="Interrupted at 400 frames"):
         train(cfg, tmp_path)
     saved = torch.load(tmp_path / CHECKPOINT, weights_only=True)
-    assert saved["progress"]["episodes"] == 2 and "replay_buffer" not in saved["kept"]
+    assert saved["members"][0]["progress"]["episodes"] == 2 and "replay_buffer" not in saved["kept"]
 
     monkeypatch.setattr(run_module, "_record_episodes", original)
     cfg.resume = True

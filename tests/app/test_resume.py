@@ -82,7 +82,7 @@ def test_a_killed_and_resumed_run_ends_exactly_as_the_uninterrupted_one(tmp_path
     assert killed.returncode == -9, killed.stderr  # SIGKILL: nothing could clean up
     if kill[0] == "checkpoint-write":
         assert (tmp_path / (CHECKPOINT + ".partial")).exists()
-    assert load_safely(tmp_path / CHECKPOINT)["progress"]["frames"] < kill[1]
+    assert load_safely(tmp_path / CHECKPOINT)["frames"] < kill[1]
     resumed = run_train(tmp_path, "resume=true")
     assert resumed.returncode == 0, resumed.stderr
     again = run_files(tmp_path)

@@ -14,7 +14,8 @@ from omegaconf import DictConfig
 
 from torchrl_mbe import DynamicsModel, ModelBasedExplorationPolicy, RollingGaussianDensity
 from torchrl_mbe.app import register_configs
-from torchrl_mbe.app.observation import config_observation_spec, match_observation
+from torchrl_mbe.app.environments import config_observation_spec
+from torchrl_mbe.app.observation import match_observation
 
 REPO = Path(__file__).resolve().parents[2]
 USAGE = REPO / "docs" / "usage.md"

@@ -10,19 +10,20 @@ from pathlib import Path
 import pytest
 import torch
 
+import torchrl_mbe.app.population as population_module
 import torchrl_mbe.app.run as run_module
 from torchrl_mbe.app import ConfigError, train
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT
 
 
 @pytest.mark.parametrize(
-    "exploration", ["gaussian", "kernel", "diagonal", "knn", "kde", "rnd", "noisy", "egreedy", "none"]
+    "exploration", ["gaussian", "kernel", "diagonal", "knn", "kde", "rnd", "noisy", "bootstrap", "egreedy", "none"]
 )
 def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration, compose_config, read_table):
     summary = train(compose_config(f"exploration={exploration}", "logger.log_every_updates=10"), tmp_path)
     assert summary["frames"] >= 300 and summary["q_updates"] >= 50  # 0.25 updates per frame after 100
     assert summary["method"] == f"dqn+{exploration}"
-    assert (summary["dynamics_updates"] > 0) == (exploration not in ("rnd", "noisy", "egreedy", "none"))
+    assert (summary["dynamics_updates"] > 0) == (exploration not in ("rnd", "noisy", "bootstrap", "egreedy", "none"))
     episodes = read_table(tmp_path, "episodes")
     assert [int(row["episode"]) for row in episodes] == list(range(1, summary["episodes"] + 1))
     assert json.loads((tmp_path / "summary.json").read_text()) == summary
@@ -113,7 +114,7 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(
         train(cfg, tmp_path)
     monkeypatch.setattr(run_module, "_record_episodes", original)
     checkpoint = torch.load(tmp_path / CHECKPOINT, weights_only=True)
-    assert checkpoint["progress"]["frames"] == 160
+    assert checkpoint["frames"] == 160
     assert len(checkpoint["kept"]["replay_buffer"]["_storage"]["_storage"]["observation"]) >= 160
 
     cfg.resume = True
@@ -297,7 +298,7 @@ def test_csv_headers_are_on_disk_before_the_first_row(tmp_path, compose_config, 
         seen.update({name: (tmp_path / f"{name}.csv").read_text() for name in ("episodes", "evaluations", "updates")})
         raise KeyboardInterrupt  # as a SIGKILL would, before anything else is written
 
-    monkeypatch.setattr("torchrl_mbe.app.dqn.record_frames", look_at_the_files_at_the_first_batch)
+    monkeypatch.setattr("torchrl_mbe.app.population.record_frames", look_at_the_files_at_the_first_batch)
     with pytest.raises(KeyboardInterrupt):
         train(compose_config(), tmp_path)
     assert seen["episodes"].startswith("episode,frames,return") and seen["evaluations"].startswith("frames,episode")
@@ -333,7 +334,7 @@ def test_evaluating_more_often_leaves_training_untouched(tmp_path, compose_confi
 
 def test_stop_when_solved_ends_at_the_first_solved_evaluation(tmp_path, compose_config, monkeypatch):
     monkeypatch.setattr(
-        run_module,
+        population_module,
         "evaluate",
         lambda *args, **kwargs: {"eval_return_mean": -100.0, "eval_return_std": 0.0, "eval_success_rate": 1.0},
     )
@@ -359,7 +360,7 @@ def test_a_solved_evaluation_that_the_longer_one_does_not_confirm_lets_training_
             "eval_success_rate": 1.0,
         }
 
-    monkeypatch.setattr(run_module, "evaluate", fake_evaluate)
+    monkeypatch.setattr(population_module, "evaluate", fake_evaluate)
     overrides = (
         "train.stop_when_solved=true",
         "train.max_frames=2000",
@@ -381,7 +382,7 @@ def test_checkpoints_of_version_0_1_are_refused_with_one_line(tmp_path, compose_
     torch.save(checkpoint, tmp_path / CHECKPOINT)
     with pytest.raises(
         ConfigError,
-        match=r"checkpoint format 1 \(torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2\); this version reads format 3 only",
+        match=r"checkpoint format 1 \(torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2, 0.3.0 wrote 3\); this version reads format 4 only",
     ):
         train(compose_config("train.max_frames=240", "resume=true"), tmp_path)
 
@@ -448,10 +449,10 @@ def test_ctrl_c_during_the_final_evaluation_exits_with_the_checkpoint_and_the_re
     def interrupted_evaluation(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(run_module, "evaluate", interrupted_evaluation)
+    monkeypatch.setattr(population_module, "evaluate", interrupted_evaluation)
     with pytest.raises(SystemExit, match=r"Interrupted at 304 frames; checkpoint saved in .*resume=true"):
         train(compose_config(), tmp_path)
-    assert torch.load(tmp_path / CHECKPOINT, weights_only=True)["progress"]["frames"] == 304
+    assert torch.load(tmp_path / CHECKPOINT, weights_only=True)["frames"] == 304
     assert not (tmp_path / "summary.json").exists()
 
 

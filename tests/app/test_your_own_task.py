@@ -8,8 +8,9 @@ import pytest
 from omegaconf import OmegaConf
 
 from torchrl_mbe.app import ConfigError, train
+from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import EXPLORERS
-from torchrl_mbe.app.observation import config_observation_spec, match_observation
+from torchrl_mbe.app.observation import match_observation
 
 pytest.importorskip("minigrid")
 

@@ -17,8 +17,8 @@ from torchrl_mbe.rundir import CHECKPOINT
 
 __all__ = ["CHECKPOINT_FORMAT", "load_safely", "read_checkpoint", "refuse_to_overwrite", "save_atomically"]
 
-CHECKPOINT_FORMAT = 3
-"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2)."""
+CHECKPOINT_FORMAT = 4
+"""Version of the checkpoint layout; checkpoints of another version are refused (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2, 0.3.0 wrote 3)."""
 
 
 def refuse_to_overwrite(run_dir: Path) -> None:
@@ -39,7 +39,7 @@ def read_checkpoint(cfg: DictConfig, run_dir: Path) -> dict:
     if not isinstance(checkpoint, dict) or checkpoint.get("format") != CHECKPOINT_FORMAT:
         found = checkpoint.get("format", 1) if isinstance(checkpoint, dict) else "unknown"
         raise ConfigError(
-            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2); this version "
+            f"{checkpoint_path} has checkpoint format {found} (torchrl-mbe 0.1.0 wrote 1, 0.2.0 wrote 2, 0.3.0 wrote 3); this version "
             f"reads format {CHECKPOINT_FORMAT} only. Start a new run in another directory."
         )
     differences = config_differences(checkpoint["config"], cfg)

@@ -3,8 +3,8 @@
 :func:`train_dqn` reads top to bottom: collect a batch with the exploration
 policy, store its transitions (n-step, through TorchRL's ``MultiStepTransform``),
 record it, let the agent learn from the new frames (the explorer's own updates,
-then the Q steps with their target update and eps annealing), then the run's
-bookkeeping (:mod:`torchrl_mbe.app.run`). What differs between explorers lives in
+then the Q steps with their target update and eps annealing), then the runs'
+bookkeeping (:mod:`torchrl_mbe.app.population`; a single run is a population of one). What differs between explorers lives in
 :mod:`torchrl_mbe.app.explorers`; the loop calls the explorer's hooks.
 """
 
@@ -23,54 +23,58 @@ from torchrl.envs import TransformedEnv
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
+from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
-from torchrl_mbe.app.observation import env_options
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
+from torchrl_mbe.app.population import StopOnInterrupt, open_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_fits, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
-from torchrl_mbe.app.run import (
-    StopOnInterrupt,
-    evaluate_and_checkpoint_if_due,
-    finish_run,
-    keep_in_checkpoints,
-    make_run_env,
-    open_run,
-    record_frames,
-    record_updates,
-)
+from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
 from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
 from torchrl_mbe.objectives.population import PopulationDQNLoss
 
-__all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "num_members", "train_dqn"]
+__all__ = ["DQNAgent", "DQNSettings", "build_dqn_agent", "member_dimension", "train_dqn"]
 
 
 def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
-    """Trains DQN with the configured exploration and returns the run's summary."""
-    env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)
-    check_replay_fits(cfg.buffer, env, 1, cfg.device, run_dir)
+    """Trains DQN with the configured exploration (``population=M`` agents together) and returns the summary.
+
+    A single run is a population of one: the same loop, without a member dimension.
+    """
+    size = cfg.population  # 1 for a single run
+    env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)  # (num_envs,), or (num_envs, M)
+    check_replay_fits(cfg.buffer, env, size, cfg.device, run_dir)
     agent = build_dqn_agent(cfg, env)
-    replay_buffer = make_replay_buffer(cfg.buffer, cfg.device)
+    replay_buffer = make_replay_buffer(cfg.buffer, cfg.device, member_dimension(cfg))
     # Built before a resume restores torch's generator: checking the policy draws from it.
-    collector = Collector(env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch, total_frames=-1)
-    run = open_run(cfg, run_dir, agent)
-    keep_in_checkpoints(run, "replay_buffer", ReplayState(replay_buffer))
-    transitions = ReplayTransitions(cfg.algo.n_steps, cfg.algo.gamma, intrinsic_coef=agent.explorer.intrinsic_coef)
-    keep_in_checkpoints(run, "transitions", transitions)  # the frames its n-step windows hold back
-    keep_in_checkpoints(run, "collector", CollectorState(collector))  # the env and the step it goes on from
+    collector = Collector(
+        env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * size, total_frames=-1
+    )
+    population = open_population(cfg, run_dir, agent)
+    population.keep("replay_buffer", ReplayState(replay_buffer))
+    transitions = ReplayTransitions(
+        cfg.algo.n_steps,
+        cfg.algo.gamma,
+        intrinsic_coef=agent.explorer.intrinsic_coef,
+        num_members=member_dimension(cfg),
+        extra_keys=agent.explorer.stored_keys,
+    )
+    population.keep("transitions", transitions)  # the frames its n-step windows hold back
+    population.keep("collector", CollectorState(collector))  # the env and the step it goes on from
     batches = iter(collector)
     with StopOnInterrupt() as interrupt:
-        while not (run.budget_spent() or interrupt.requested):
-            batch = next(batches)
+        while population.training(interrupt):
+            batch = next(batches)  # (num_envs, time), or (num_envs, M, time)
             stored = transitions(batch)
             if stored is not None:  # None while the first n-step windows fill
                 replay_buffer.extend(stored)
-            record_frames(run, batch, eps=agent.eps)
-            update_rows = agent.learn(batch, replay_buffer, run.progress.frames)
-            record_updates(run, update_rows)
-            evaluate_and_checkpoint_if_due(run, batch.numel())
+            population.record(batch, eps=agent.eps)
+            population.record_updates(agent.learn(batch, replay_buffer, population.frames))
+            population.evaluate_and_checkpoint_if_due(batch.numel() // size)
     try:
-        return finish_run(run, interrupt)  # its checkpoint keeps the collector's state
+        return population.finish(interrupt)  # its checkpoint keeps the collector's state
     finally:
         collector.shutdown()
 
@@ -86,6 +90,7 @@ class DQNSettings:
     lr_decay_frames: int | None
     lr_end_factor: float
     log_every_updates: int  # 0: no updates-table rows
+    population: int  # agents learning together (1: a single run)
 
     @classmethod
     def from_config(cls, cfg: DictConfig) -> DQNSettings:
@@ -98,6 +103,7 @@ class DQNSettings:
             algo.lr_decay_frames,
             algo.lr_end_factor,
             cfg.logger.log_every_updates,
+            cfg.population,
         )
 
 
@@ -135,7 +141,7 @@ class DQNAgent:
         )
         self.q_input_norm, self.settings = q_input_norm, settings
         self.standardizes_inputs = any(module is q_input_norm for module in actor.modules())
-        self.members = q_step.num_members or 1  # a population's agents learn together, each from its own frames
+        self.population_size = settings.population  # a population's agents learn together, each from its own frames
         self.q_schedule = UpdateSchedule(settings.learning_starts, settings.updates_per_frame)
 
     @property
@@ -156,7 +162,7 @@ class DQNAgent:
         updates (:meth:`learn_q`). In a population, ``frames`` and the schedule
         count each member's frames, and a row's losses are lists (one per member).
         """
-        new_frames = batch.numel() // self.members
+        new_frames = batch.numel() // self.population_size
         self.explorer.observe(batch)
         self.explorer.learn(replay_buffer, frames, new_frames)
         if frames >= self.settings.learning_starts:
@@ -235,11 +241,14 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         >>> type(agent.explorer).__name__, env.rollout(3)["next", "intrinsic_reward"].shape
         ('RNDExplorer', torch.Size([4, 3, 1]))
     """
-    algo, device, members = cfg.algo, torch.device(cfg.device), num_members(cfg)
+    algo, device, num_members = cfg.algo, torch.device(cfg.device), member_dimension(cfg)
     explorer_class = explorer_of(cfg.exploration)
     action_spec = env.action_spec_unbatched.to(device)
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
-    q_input_norm = Standardize(observation_size if members is None else (members, observation_size), device=device)
+    q_input_norm = Standardize(
+        observation_size if num_members is None else (num_members, observation_size), device=device
+    )
+    ensemble = explorer_class.q_ensemble(cfg.exploration)  # a Bootstrapped DQN's (heads, prior scale), else None
     actor = make_q_actor(
         observation_size,
         action_spec,
@@ -247,38 +256,31 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         device,
         input_norm=q_input_norm if algo.standardize_inputs else None,
         noise_std=explorer_class.q_network_noise(cfg.exploration),
-        num_members=members,
+        num_members=num_members,
+        ensemble=ensemble,
     )
-    loss_class, loss_key = (DQNLoss, "loss") if members is None else (PopulationDQNLoss, "member_loss")
-    q_loss = loss_class(
-        actor, loss_function=algo.loss_function, double_dqn=algo.double_dqn, delay_value=True, action_space=action_spec
-    )
-    q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
-    _resolve_input_keys(q_loss)
+    q_loss = make_q_loss(actor, algo, action_spec, num_members)
     context = ExplorerContext(
-        cfg, env, actor, q_loss, action_spec, observation_size, device, members, env_options(cfg.env)
+        cfg, env, actor, q_loss, action_spec, observation_size, device, num_members, env_options(cfg.env)
     )
     explorer = explorer_class.build(context)
+    loss_key = "member_loss" if isinstance(q_loss, PopulationDQNLoss) else "loss"
     q_step = GradientStep(
         lambda batch: q_loss(batch)[loss_key],
         adam(q_loss.parameters(), algo.lr),
         algo.max_grad_norm,
         compile=cfg.compile,
-        num_members=members,
+        num_members=num_members if ensemble is None else ensemble[0],  # an ensemble's heads clip on their own
+        report_mean=ensemble is not None,
     )
     return DQNAgent(
         actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg)
     )
 
 
-def num_members(cfg: DictConfig) -> int | None:
+def member_dimension(cfg: DictConfig) -> int | None:
     """The population's size M with ``population=M > 1``; ``None`` for a single agent (``population=1``)."""
     return cfg.population if cfg.population > 1 else None
-
-
-def _resolve_input_keys(q_loss: DQNLoss) -> None:
-    """Resolves DQNLoss's input keys now: it does so lazily on first use, which would make a compiled step trace twice."""
-    _ = q_loss.in_keys
 
 
 def make_q_actor(
@@ -290,13 +292,28 @@ def make_q_actor(
     input_norm: Standardize | None = None,
     noise_std: float | None = None,
     num_members: int | None = None,
-) -> QValueActor:
+    ensemble: tuple[int, float] | None = None,
+) -> QValueActor | BootstrappedQValueActor:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
 
     With ``input_norm`` the MLP reads observations standardized by it; with
     ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
-    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`).
+    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`);
+    with ``ensemble=(heads, prior_scale)`` it is a Bootstrapped DQN's
+    (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`).
     """
+    if ensemble is not None:
+        num_heads, prior_scale = ensemble
+        network = EnsembleQNetwork(
+            observation_size,
+            action_spec.space.n,
+            num_cells,
+            num_heads,
+            prior_scale,
+            input_norm=input_norm,
+            device=device,
+        )
+        return BootstrappedQValueActor(network, action_spec)
     if num_members is not None:
         return make_population_q_actor(
             observation_size,
@@ -311,6 +328,30 @@ def make_q_actor(
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
+
+
+def make_q_loss(
+    actor: QValueActor | BootstrappedQValueActor, algo: DictConfig, action_spec: TensorSpec, num_members: int | None
+) -> DQNLoss:
+    """TorchRL's ``DQNLoss`` (one loss per member for a population's actor, per head for an ensemble's), its value estimator set.
+
+    Its input keys are resolved now: ``DQNLoss`` does so lazily on first use, which would make a compiled step trace twice.
+    """
+    options = {
+        "loss_function": algo.loss_function,
+        "double_dqn": algo.double_dqn,
+        "delay_value": True,
+        "action_space": action_spec,
+    }
+    if isinstance(actor, BootstrappedQValueActor):
+        q_loss = BootstrapDQNLoss(actor, **options)
+    elif num_members is not None:
+        q_loss = PopulationDQNLoss(actor, **options)
+    else:
+        q_loss = DQNLoss(actor, **options)
+    q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
+    _ = q_loss.in_keys
+    return q_loss
 
 
 def make_target_updater(algo: DictConfig, q_loss: DQNLoss) -> TargetNetUpdater:

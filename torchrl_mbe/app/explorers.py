@@ -33,9 +33,9 @@ from torchrl.objectives import DQNLoss, RNDLoss
 
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
-from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
+from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, PROBABILITY, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
-from torchrl_mbe.envs.transforms import PopulationRNDTransform
+from torchrl_mbe.envs.transforms import BootstrapHeads, PopulationRNDTransform
 from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy
@@ -96,6 +96,7 @@ class Explorer:
     log_columns: ClassVar[tuple[str, ...]] = ()  # the updates table's columns that log_fields and after_q_update fill
     counters: ClassVar[tuple[str, ...]] = ()  # the summary's counters that summary_fields returns
     intrinsic_coef: float | None = None  # the Q-network learns reward + intrinsic_coef * ("next", "intrinsic_reward")
+    stored_keys: ClassVar[tuple] = ()  # keys of the collected frames the replay buffer keeps for this explorer's losses
 
     def __init__(self, policy: TensorDictModuleBase) -> None:
         self.policy = policy
@@ -107,6 +108,11 @@ class Explorer:
     @classmethod
     def q_network_noise(cls, exploration: DictConfig) -> float | None:
         """The initial noise scale of a NoisyNet Q-network this explorer needs, or ``None`` for a plain one."""
+        return None
+
+    @classmethod
+    def q_ensemble(cls, exploration: DictConfig) -> tuple[int, float] | None:
+        """The ``(heads, prior scale)`` of the Q ensemble this explorer acts with (Bootstrapped DQN), or ``None`` for one Q-network."""
         return None
 
     @classmethod
@@ -224,11 +230,11 @@ class RNDExplorer(EGreedyExplorer):
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
         egreedy = EGreedyExplorer.build(context)
-        exploration, members = context.cfg.exploration, context.num_members
+        exploration, num_members = context.cfg.exploration, context.num_members
         target, predictor = (cls._network(context) for _ in range(2))
         transform, loss, loss_key = (
             (RNDTransform, RNDLoss, "loss_predictor")
-            if members is None
+            if num_members is None
             else (PopulationRNDTransform, PopulationRNDLoss, "member_loss")
         )
         rnd, loss = transform(target, predictor), loss(predictor, target)
@@ -238,7 +244,7 @@ class RNDExplorer(EGreedyExplorer):
             adam(predictor.parameters(), exploration.lr),
             None,
             compile=context.cfg.compile,
-            num_members=members,
+            num_members=num_members,
         )
         return cls(egreedy.policy, egreedy.eps_module, rnd, loss, step, exploration.intrinsic_coef)
 
@@ -309,6 +315,38 @@ class NoisyExplorer(Explorer):
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
         self.policy.apply(self.reset_noise)
         return {}
+
+
+@dataclass
+class BootstrapExploration(ExplorationConfig):
+    """Bootstrapped DQN with randomized prior functions: K Q heads, one acting per episode, no eps (bsuite's boot_dqn)."""
+
+    name: str = "bootstrap"
+    num_heads: int = setting(20, POSITIVE_INT)  # the ensemble's size K
+    prior_scale: float = setting(5.0, NON_NEGATIVE)  # Q_k = f_k + prior_scale * p_k, p_k fixed and random; 0: no priors
+    mask_prob: float = setting(1.0, PROBABILITY)  # each head's chance of training on a transition
+
+
+class BootstrapExplorer(Explorer):
+    """``exploration=bootstrap``: the ensemble explores by acting with one head per episode (Thompson sampling).
+
+    The Q-network is the ensemble (:meth:`q_ensemble`); the explorer appends
+    :class:`~torchrl_mbe.envs.transforms.BootstrapHeads` to the training env, which draws
+    each episode's head and each transition's bootstrap mask.
+    """
+
+    schema = BootstrapExploration
+    stored_keys = (("next", "bootstrap_mask"),)  # each transition's mask, which the loss reads
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        exploration = context.cfg.exploration
+        context.env.append_transform(BootstrapHeads(exploration.num_heads, exploration.mask_prob))
+        return cls(context.actor)
+
+    @classmethod
+    def q_ensemble(cls, exploration: DictConfig) -> tuple[int, float] | None:
+        return exploration.num_heads, exploration.prior_scale
 
 
 @dataclass
@@ -556,12 +594,13 @@ EXPLORERS: dict[str, type[Explorer]] = {
         KernelDensityExplorer,
         RNDExplorer,
         NoisyExplorer,
+        BootstrapExplorer,
         EGreedyExplorer,
         Explorer,
     )
 }
 """Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde),
-TorchRL's RND and NoisyNet, e-greedy (random exploring actions) and none (never explores)."""
+TorchRL's RND and NoisyNet, Bootstrapped DQN with priors, e-greedy (random exploring actions) and none (never explores)."""
 
 
 def logged_columns() -> tuple[str, ...]:

@@ -20,14 +20,12 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 from torchrl.data import OneHot, TensorSpec
 
+from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration
-from torchrl_mbe.envs import make_env
 
 __all__ = [
     "CATEGORICAL_DYNAMICS",
     "COUNTS_EXPLORATION",
-    "config_observation_spec",
-    "env_options",
     "match_observation",
     "matched",
     "named_on_command_line",
@@ -88,16 +86,6 @@ def matched(cfg: DictConfig) -> DictConfig:
     cfg = cfg.copy()
     match_observation(cfg, config_observation_spec(cfg), named_on_command_line())
     return cfg
-
-
-def config_observation_spec(cfg: DictConfig) -> TensorSpec:
-    """The observation spec of the env ``cfg.env`` describes."""
-    return make_env(cfg.env.name, **env_options(cfg.env)).observation_spec["observation"]
-
-
-def env_options(env: DictConfig) -> dict:
-    """The env's keyword arguments that the ``env`` config sets: ``gym.make``'s ``make_kwargs``, DeepSea's ``size``."""
-    return {**env.make_kwargs, **({"size": env.size} if env.size is not None else {})}
 
 
 def named_on_command_line() -> set[str]:

@@ -74,7 +74,8 @@ class GradientStep:
     A population's step (``num_members``) takes ``loss(batch) -> [M]``, one loss per
     member, back-propagates their sum and clips each member's gradient on its own
     (:func:`clip_grad_norm_per_member_`): members
-    never share a norm, and Adam's update is elementwise.
+    never share a norm, and Adam's update is elementwise. An ensemble's heads (one
+    agent's) are members too; ``report_mean`` then returns their mean loss.
 
     Args:
         loss (callable): ``loss(batch) -> scalar tensor`` (``[M]`` with ``num_members``).
@@ -84,6 +85,7 @@ class GradientStep:
     Keyword Args:
         compile (bool): compile the loss and backward. Defaults to ``False``.
         num_members (int, optional): the population size, whose parameters are stacked ``[M, ...]``.
+        report_mean (bool): return the members' mean loss, not each member's. Defaults to ``False``.
     """
 
     def __init__(
@@ -94,8 +96,10 @@ class GradientStep:
         *,
         compile: bool = False,
         num_members: int | None = None,
+        report_mean: bool = False,
     ) -> None:
         self.loss = loss
+        self.report_mean = report_mean
         self.optimizer = optimizer
         self.max_grad_norm = max_grad_norm
         self.num_members = num_members
@@ -104,14 +108,14 @@ class GradientStep:
         )
 
     def __call__(self, batch: TensorDictBase) -> float | list[float]:
-        """Takes the step on ``batch`` and returns the loss before it (each member's, with ``num_members``)."""
+        """Takes the step on ``batch`` and returns the loss before it (each member's, with ``num_members``, or their mean)."""
         self.optimizer.zero_grad(set_to_none=True)
         loss = self._compiled_or_eager(batch)
         if self.max_grad_norm is not None:
             for group in self.optimizer.param_groups:
                 self._clip(group["params"])
         self.optimizer.step()
-        return loss.tolist()
+        return loss.mean().item() if self.report_mean else loss.tolist()
 
     def _clip(self, parameters: list[torch.Tensor]) -> None:
         if self.num_members is None:

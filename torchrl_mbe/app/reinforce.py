@@ -24,7 +24,8 @@ its ``loss_value`` is neither optimized nor logged. The advantage is written
 into each episode under the loss's advantage key, so the loss never runs its
 value estimator.
 
-:func:`train_reinforce` is the training loop; it shares the DQN app's run
+:func:`train_reinforce` is the training loop; it shares the DQN app's run bookkeeping
+(:mod:`torchrl_mbe.app.population`, with one member), its run
 directory layout (``episodes.csv`` with ``eps`` 0, ``evaluations.csv``,
 ``summary.json`` with method ``reinforce``), its greedy evaluation (the mode of
 the policy under ``ExplorationType.DETERMINISTIC``), checkpoints (policy and
@@ -49,18 +50,11 @@ from torchrl.modules import OneHotCategorical, ProbabilisticActor
 from torchrl.objectives import ReinforceLoss
 from torchrl.objectives.value.functional import reward2go
 
+from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.evaluation import play_episode
 from torchrl_mbe.app.optim import GradientStep, adam
+from torchrl_mbe.app.population import StopOnInterrupt, open_population
 from torchrl_mbe.app.rollout import EnvState
-from torchrl_mbe.app.run import (
-    StopOnInterrupt,
-    evaluate_and_checkpoint_if_due,
-    finish_run,
-    keep_in_checkpoints,
-    make_run_env,
-    open_run,
-    record_frames,
-)
 from torchrl_mbe.modules import make_per_action_mlp
 
 __all__ = [
@@ -199,13 +193,13 @@ def train_reinforce(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains REINFORCE, one update per episode, and returns the run's summary (see :func:`~torchrl_mbe.app.train`)."""
     env = make_run_env(cfg, num_envs=1, seed=cfg.seed)
     agent = build_reinforce_agent(cfg, env)
-    run = open_run(cfg, run_dir, agent)
-    keep_in_checkpoints(run, "env", EnvState(env))
+    run = open_population(cfg, run_dir, agent)  # one run: REINFORCE trains no populations
+    run.keep("env", EnvState(env))
     with StopOnInterrupt() as interrupt:
-        while not (run.budget_spent() or interrupt.requested):
+        while run.training(interrupt):
             with set_exploration_type(ExplorationType.RANDOM), torch.no_grad():
                 episode = play_episode(env, agent.actor)
-            record_frames(run, episode)
+            run.record(episode)
             update_policy(agent, episode)
-            evaluate_and_checkpoint_if_due(run, episode.numel())
-    return finish_run(run, interrupt)
+            run.evaluate_and_checkpoint_if_due(episode.numel())
+    return run.finish(interrupt)

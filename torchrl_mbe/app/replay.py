@@ -34,7 +34,7 @@ SUCCESSOR_KEY = "successor_observation"
 OBSERVATIONS_PER_TRANSITION = 3  # the observation, the one n steps on, and the one-step successor (SUCCESSOR_KEY)
 
 
-def check_replay_fits(buffer: DictConfig, env: EnvBase, members: int, device: str, run_dir: Path) -> None:
+def check_replay_fits(buffer: DictConfig, env: EnvBase, population: int, device: str, run_dir: Path) -> None:
     """Refuses, in one line, a replay buffer whose observations of ``env`` exceed the CPU memory available now,
     or whose checkpoints would not fit on ``run_dir``'s disk.
 
@@ -45,8 +45,8 @@ def check_replay_fits(buffer: DictConfig, env: EnvBase, members: int, device: st
     that has none yet needs room for two.
     """
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
-    needed = OBSERVATIONS_PER_TRANSITION * 4 * observation_size * buffer.size * members
-    kept = f"{members} x {buffer.size:,}" if members > 1 else f"{buffer.size:,}"
+    needed = OBSERVATIONS_PER_TRANSITION * 4 * observation_size * buffer.size * population
+    kept = f"{population} x {buffer.size:,}" if population > 1 else f"{buffer.size:,}"
     transitions = f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about {needed / 2**30:.1f} GiB"
     available = _available_memory_bytes() if torch.device(device).type == "cpu" else None
     if available is not None and needed > available:
@@ -79,13 +79,18 @@ def _available_memory_bytes() -> int | None:
     return int(line.split()[1]) * 1024
 
 
-def make_replay_buffer(buffer: DictConfig, device: str) -> ReplayBuffer:
-    """Uniform ``TensorDictReplayBuffer`` or ``TensorDictPrioritizedReplayBuffer`` (TD-error priorities).
+def make_replay_buffer(
+    buffer: DictConfig, device: str, num_members: int | None = None
+) -> ReplayBuffer | PopulationReplayBuffer:
+    """Uniform ``TensorDictReplayBuffer`` or ``TensorDictPrioritizedReplayBuffer`` (TD-error priorities);
+    with ``num_members``, a population's :class:`PopulationReplayBuffer` (uniform, each member its own samples).
 
     ``compilable=True`` keeps the buffer's counters in plain tensors instead of
     multiprocessing values: the buffer never leaves this process, and a killed
     run then leaves no semaphores behind.
     """
+    if num_members is not None:
+        return PopulationReplayBuffer(buffer.size, num_members, device=device)
     storage = LazyTensorStorage(buffer.size, device=device, compilable=True)
     if buffer.name == "prioritized":
         return TensorDictPrioritizedReplayBuffer(
@@ -118,18 +123,18 @@ class ReplayState:
 
     _TREES: ClassVar[dict[str, type]] = {"_sum_tree": SumSegmentTreeFp32, "_min_tree": MinSegmentTreeFp32}
 
-    def __init__(self, buffer: ReplayBuffer) -> None:
+    def __init__(self, buffer: ReplayBuffer | PopulationReplayBuffer) -> None:
         self.buffer = buffer
 
     def state_dict(self) -> dict:
         state = self.buffer.state_dict()
-        sampler = state["_sampler"]
+        sampler = state.get("_sampler", {})  # a PopulationReplayBuffer's state is tensors already
         for name in self._TREES.keys() & sampler.keys():
             sampler[name] = sampler[name][torch.arange(sampler[name].size)]
         return state
 
     def load_state_dict(self, state: dict) -> None:
-        sampler = state["_sampler"]
+        sampler = state.get("_sampler", {})
         for name in self._TREES.keys() & sampler.keys():
             leaves = sampler[name]
             tree = self._TREES[name](len(leaves))
@@ -177,20 +182,28 @@ class ReplayTransitions:
     )
 
     def __init__(
-        self, n_steps: int, gamma: float, *, intrinsic_coef: float | None = None, num_members: int | None = None
+        self,
+        n_steps: int,
+        gamma: float,
+        *,
+        intrinsic_coef: float | None = None,
+        num_members: int | None = None,
+        extra_keys: tuple = (),
     ) -> None:
         self.multistep = MultiStepTransform(n_steps, gamma, done_keys=["done", "truncated"]) if n_steps > 1 else None
         self.intrinsic_coef = intrinsic_coef
         self.num_members = num_members
+        self.extra_keys = tuple(extra_keys)
 
     def __call__(self, frames: TensorDictBase) -> TensorDictBase | None:
         """Transitions of ``frames`` (``(time,)`` or ``(envs, time)``) as a flat batch; ``None`` while held back.
 
         With ``num_members``, ``frames`` are a population's ``(envs, M, time)`` and the
         batch is ``(envs * time, M)``, each member's transitions in its own column.
-        With ``intrinsic_coef``, the stored reward is ``reward + intrinsic_coef * ("next", "intrinsic_reward")``.
+        With ``intrinsic_coef``, the stored reward is ``reward + intrinsic_coef * ("next", "intrinsic_reward")``;
+        ``extra_keys`` are stored too (an explorer's: Bootstrapped DQN's mask).
         """
-        transitions = one_step_transitions(frames)
+        transitions = one_step_transitions(frames, self.extra_keys)
         if self.intrinsic_coef is not None:
             reward = frames.get(("next", "reward")) + self.intrinsic_coef * frames.get(("next", "intrinsic_reward"))
             transitions.set(("next", "reward"), reward)
@@ -223,9 +236,9 @@ def flatten_frames(frames: TensorDictBase, num_members: int | None = None) -> Te
     return frames.transpose(-2, -1).contiguous().reshape(-1, num_members)
 
 
-def one_step_transitions(frames: TensorDictBase) -> TensorDictBase:
-    """The keys the losses read from collected ``frames``, with the one-step successor the dynamics model learns."""
-    transitions = frames.select(*ReplayTransitions.KEYS)
+def one_step_transitions(frames: TensorDictBase, extra_keys: tuple = ()) -> TensorDictBase:
+    """The keys the losses read from collected ``frames`` (and ``extra_keys``), with the one-step successor the dynamics model learns."""
+    transitions = frames.select(*ReplayTransitions.KEYS, *extra_keys)
     return transitions.set(SUCCESSOR_KEY, transitions.get(("next", "observation")))
 
 

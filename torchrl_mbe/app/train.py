@@ -10,8 +10,8 @@ from omegaconf import DictConfig
 
 from torchrl_mbe.app.config import check_config, register_configs
 from torchrl_mbe.app.dqn import train_dqn
-from torchrl_mbe.app.observation import config_observation_spec, match_observation, named_on_command_line
-from torchrl_mbe.app.population import train_dqn_population
+from torchrl_mbe.app.environments import config_observation_spec
+from torchrl_mbe.app.observation import match_observation, named_on_command_line
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.run import RunFinished
 
@@ -26,8 +26,9 @@ LOOPS = {"dqn": train_dqn, "reinforce": train_reinforce}
 def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     """Trains the configured agent and returns the run's summary (``summary.json``).
 
-    With ``population=M > 1`` it trains M agents together (:mod:`torchrl_mbe.app.population`)
-    and returns the population's summary, each member's under ``"members"``.
+    With ``population=M > 1`` it trains M agents together, each writing its own run
+    directory (:mod:`torchrl_mbe.app.population`), and returns the population's
+    summary, each member's under ``"members"``.
 
     Every config value is checked before anything is built
     (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one). The explorer then
@@ -59,8 +60,7 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     torch.set_flush_denormal(True)
     torch.manual_seed(cfg.seed)
     try:
-        loop = train_dqn_population if cfg.population > 1 else LOOPS[cfg.algo.name]
-        return loop(cfg, run_dir)
+        return LOOPS[cfg.algo.name](cfg, run_dir)
     except RunFinished as finished:
         log.info(
             "%s already finished its budget (raise train.episodes or train.max_frames to continue); nothing changed.",

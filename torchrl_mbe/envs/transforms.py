@@ -1,12 +1,81 @@
-"""Transforms of a population's env batch ``[num_envs, M]``: TorchRL's RND with each member's running statistics."""
+"""Transforms: TorchRL's RND with each member's running statistics on a population's env batch ``[num_envs, M]``,
+and what Bootstrapped DQN needs from the env (the acting head of each episode, a bootstrap mask per step)."""
 
 from __future__ import annotations
 
 import torch
-from torchrl.envs.transforms import RNDTransform
+from tensordict import TensorDictBase
+from torchrl.data import Binary, Categorical, Composite
+from torchrl.envs.transforms import RNDTransform, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
-__all__ = ["PopulationRNDTransform"]
+__all__ = ["BootstrapHeads", "PopulationRNDTransform"]
+
+
+class BootstrapHeads(Transform):
+    """What Bootstrapped DQN needs from the env: the head that acts in each episode, and a bootstrap mask per step.
+
+    At a reset, every env that resets draws its head uniformly among ``num_heads``
+    (torch's generator) into ``head_key``; every step carries it on, so one head acts
+    for a whole episode (Osband et al.'s Thompson sampling over the ensemble). Every
+    step also writes ``mask_key``: ``num_heads`` Bernoulli(``mask_prob``) draws, whether
+    each head trains on that transition (stored with it in the replay buffer).
+
+    Args:
+        num_heads (int): the ensemble's size ``K``.
+        mask_prob (float): each head's chance of training on a transition. Defaults to
+            ``1.0`` (bsuite's ``boot_dqn``: the heads differ by their initialization and priors).
+
+    Keyword Args:
+        head_key (NestedKey): where the head index goes. Defaults to ``"head"``.
+        mask_key (NestedKey): where the mask goes. Defaults to ``"bootstrap_mask"``.
+
+    Examples:
+        >>> from torchrl_mbe import make_env
+        >>> from torchrl_mbe.envs.transforms import BootstrapHeads
+        >>> env = make_env("mountaincar", num_envs=4, seed=0)
+        >>> _ = env.append_transform(BootstrapHeads(num_heads=10, mask_prob=0.5))
+        >>> rollout = env.rollout(3)
+        >>> rollout["head"].shape, bool((rollout["head"] == rollout["head"][:, :1]).all())  # one head per episode
+        (torch.Size([4, 3]), True)
+        >>> rollout["next", "bootstrap_mask"].shape
+        torch.Size([4, 3, 10])
+    """
+
+    def __init__(
+        self, num_heads: int, mask_prob: float = 1.0, *, head_key: str = "head", mask_key: str = "bootstrap_mask"
+    ) -> None:
+        if num_heads < 1 or not 0.0 <= mask_prob <= 1.0:
+            raise ValueError(f"num_heads must be positive and mask_prob in [0, 1], got {num_heads} and {mask_prob}.")
+        super().__init__(in_keys=[], out_keys=[head_key, mask_key])
+        self.num_heads, self.mask_prob, self.head_key, self.mask_key = num_heads, mask_prob, head_key, mask_key
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        batch_size, device = tensordict_reset.batch_size, tensordict_reset.device
+        heads = torch.randint(self.num_heads, batch_size, device=device)
+        previous = tensordict.get(self.head_key, None) if tensordict is not None else None
+        reset = tensordict.get(self.parent._filtered_reset_keys[0], None) if tensordict is not None else None
+        if previous is not None and reset is not None:
+            heads = torch.where(reset.reshape(batch_size), heads, previous)
+        tensordict_reset.set(self.head_key, heads)
+        tensordict_reset.set(self.mask_key, self._mask(batch_size, device))
+        return tensordict_reset
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        next_tensordict.set(self.head_key, tensordict.get(self.head_key))
+        next_tensordict.set(self.mask_key, self._mask(next_tensordict.batch_size, next_tensordict.device))
+        return next_tensordict
+
+    def _mask(self, batch_size: torch.Size, device: torch.device) -> torch.Tensor:
+        if self.mask_prob == 1.0:  # no draw: the random stream stays that of a run without masks
+            return torch.ones(*batch_size, self.num_heads, dtype=torch.bool, device=device)
+        return torch.rand(*batch_size, self.num_heads, device=device) < self.mask_prob
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        batch_size, device = observation_spec.shape, observation_spec.device
+        observation_spec[self.head_key] = Categorical(self.num_heads, shape=batch_size, device=device)
+        observation_spec[self.mask_key] = Binary(self.num_heads, shape=(*batch_size, self.num_heads), device=device)
+        return observation_spec
 
 
 class PopulationRNDTransform(RNDTransform):
@@ -34,8 +103,8 @@ class PopulationRNDTransform(RNDTransform):
     def _maybe_init_rms(self, obs: torch.Tensor) -> None:
         # Private hook: RNDTransform fixes its statistics' shape to the features and offers no public
         # option for one set per group of the batch (no upstream issue filed yet).
-        members = obs.shape[-2]
+        num_members = obs.shape[-2]
         if self.normalize_obs and self._obs_rms is None:
             self._obs_rms = RunningMeanStd(shape=obs.shape[-2:]).to(obs.device)
         if self.normalize_reward and self._reward_rms is None:
-            self._reward_rms = RunningMeanStd(shape=(members, 1)).to(obs.device)
+            self._reward_rms = RunningMeanStd(shape=(num_members, 1)).to(obs.device)

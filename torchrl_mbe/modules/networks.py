@@ -230,17 +230,17 @@ def reset_members_noise(module: nn.Module) -> None:
     for layer in module.params.values():
         if "weight_epsilon" not in layer.keys():
             continue
-        members, out_features, in_features = layer["weight_epsilon"].shape
+        num_members, out_features, in_features = layer["weight_epsilon"].shape
         noise_in, noise_out = (
-            _factorized_noise(members, size, layer["weight_epsilon"]) for size in (in_features, out_features)
+            _factorized_noise(num_members, size, layer["weight_epsilon"]) for size in (in_features, out_features)
         )
         layer["weight_epsilon"].copy_(noise_out[:, :, None] * noise_in[:, None, :])
         layer["bias_epsilon"].copy_(noise_out)
 
 
-def _factorized_noise(members: int, size: int, like: torch.Tensor) -> torch.Tensor:
-    """``[members, size]`` draws of ``sign(x) sqrt(|x|)``, ``x`` standard normal (``NoisyLinear._scale_noise``, per member)."""
-    x = torch.randn(members, size, device=like.device, dtype=like.dtype)
+def _factorized_noise(num_members: int, size: int, like: torch.Tensor) -> torch.Tensor:
+    """``[num_members, size]`` draws of ``sign(x) sqrt(|x|)``, ``x`` standard normal (``NoisyLinear._scale_noise``, per member)."""
+    x = torch.randn(num_members, size, device=like.device, dtype=like.dtype)
     return x.sign() * x.abs().sqrt()
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from typing import ClassVar
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDict, TensorDictBase
 from torch import nn
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, RNDLoss
@@ -34,6 +34,9 @@ class PopulationDQNLoss(DQNLoss):
         value_network (QValueActor): e.g. :func:`make_population_q_actor`'s.
 
     Keyword Args:
+        mask_key (NestedKey, optional): a ``[*B, M]`` entry of the batch that weighs each
+            sample's loss (a bootstrap mask: 0 leaves the sample out of that member's
+            mean, which stays over all ``B``, as bsuite's ``boot_dqn`` takes it).
         **kwargs: ``DQNLoss``'s keyword arguments (``delay_value``, ``double_dqn``,
             ``loss_function``, ``action_space``, ...), except ``reduction``.
 
@@ -65,13 +68,16 @@ class PopulationDQNLoss(DQNLoss):
 
     out_keys: ClassVar[list[str]] = ["loss", "member_loss"]
 
-    def __init__(self, value_network: QValueActor, **kwargs) -> None:
+    def __init__(self, value_network: QValueActor, *, mask_key: NestedKey | None = None, **kwargs) -> None:
         if kwargs.pop("reduction", "none") != "none":
             raise ValueError("PopulationDQNLoss reduces per member itself; do not pass reduction.")
         super().__init__(value_network, reduction="none", **kwargs)
+        self.mask_key = mask_key
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         per_sample = super().forward(tensordict)["loss"]  # [*B, M]
+        if self.mask_key is not None:
+            per_sample = per_sample * tensordict.get(self.mask_key)
         member_loss = per_sample.reshape(-1, per_sample.shape[-1]).mean(0)
         return TensorDict(loss=member_loss.sum(), member_loss=member_loss)
 

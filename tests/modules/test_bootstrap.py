@@ -1,0 +1,143 @@
+"""Bootstrapped DQN with priors: heads never mix, one head acts per episode, K = 1 without prior is DQNLoss."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torch import nn
+from torchrl.data import OneHot
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MLP, QValueActor
+from torchrl.objectives import DQNLoss
+
+from torchrl_mbe import make_env
+from torchrl_mbe.envs.transforms import BootstrapHeads
+from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
+from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
+
+SPEC = OneHot(3)
+OBSERVATION_SIZE = 2
+LOSS_OPTIONS = {"delay_value": True, "double_dqn": True, "loss_function": "smooth_l1", "action_space": SPEC}
+
+
+def ensemble(num_heads: int, prior_scale: float = 5.0, seed: int = 0) -> BootstrappedQValueActor:
+    torch.manual_seed(seed)
+    return BootstrappedQValueActor(EnsembleQNetwork(OBSERVATION_SIZE, 3, [16], num_heads, prior_scale), SPEC)
+
+
+def transitions(batch_size: int, num_heads: int, mask_prob: float = 0.5, seed: int = 1) -> TensorDict:
+    generator = torch.Generator().manual_seed(seed)
+    flags = torch.rand(batch_size, 1, generator=generator) < 0.1
+    return TensorDict(
+        observation=torch.randn(batch_size, OBSERVATION_SIZE, generator=generator),
+        action=SPEC.rand((batch_size,)),
+        next=TensorDict(
+            observation=torch.randn(batch_size, OBSERVATION_SIZE, generator=generator),
+            reward=torch.randn(batch_size, 1, generator=generator),
+            done=flags,
+            terminated=flags,
+            bootstrap_mask=torch.rand(batch_size, num_heads, generator=generator) < mask_prob,
+        ),
+        batch_size=[batch_size],
+    )
+
+
+def head_gradients(actor: BootstrappedQValueActor, batch: TensorDict) -> dict:
+    loss = BootstrapDQNLoss(actor, **LOSS_OPTIONS)
+    loss.make_value_estimator(gamma=0.99)
+    loss(batch)["loss"].backward()
+    params = actor.network.trainable.params
+    return {key: value.grad.clone() for key, value in params.items(include_nested=True, leaves_only=True)}
+
+
+def test_changing_one_heads_mask_and_parameters_leaves_every_other_heads_gradient_unchanged():
+    batch = transitions(64, 4)
+    before = head_gradients(ensemble(4), batch.clone())
+    changed_actor, changed_batch = ensemble(4), batch.clone()
+    changed_batch["next", "bootstrap_mask"][:, 2] = ~changed_batch["next", "bootstrap_mask"][:, 2]
+    with torch.no_grad():
+        for value in changed_actor.network.trainable.params.values(include_nested=True, leaves_only=True):
+            value[2].add_(1.0)
+    after = head_gradients(changed_actor, changed_batch)
+    for key in before:
+        for head in (0, 1, 3):
+            torch.testing.assert_close(after[key][head], before[key][head], rtol=0, atol=0)
+        assert not torch.equal(after[key][2], before[key][2])
+
+
+def test_a_head_learns_nothing_from_a_transition_its_mask_leaves_out():
+    batch = transitions(32, 2, mask_prob=1.0)
+    batch["next", "bootstrap_mask"][:, 1] = False
+    gradients = head_gradients(ensemble(2), batch)
+    assert all(bool(gradient[1].eq(0).all()) and bool(gradient[0].ne(0).any()) for gradient in gradients.values())
+
+
+def test_the_priors_never_learn():
+    actor = ensemble(3)
+    loss = BootstrapDQNLoss(actor, **LOSS_OPTIONS)
+    loss.make_value_estimator(gamma=0.99)
+    loss(transitions(16, 3))["loss"].backward()
+    prior = actor.network.prior.params.values(include_nested=True, leaves_only=True)
+    assert all(value.grad is None and not value.requires_grad for value in prior)
+
+
+def test_one_head_without_prior_or_mask_takes_the_steps_dqn_loss_takes():
+    actor = ensemble(1, prior_scale=0.0)
+    single = MLP(in_features=OBSERVATION_SIZE, out_features=3, num_cells=[16], activation_class=nn.ReLU)
+    with torch.no_grad():
+        for key, value in actor.network.trainable.params.items(include_nested=True, leaves_only=True):
+            single.get_parameter(".".join(key)).copy_(value[0])
+    losses = [
+        BootstrapDQNLoss(actor, **LOSS_OPTIONS),
+        DQNLoss(QValueActor(single, spec=SPEC, in_keys=["observation"]), **LOSS_OPTIONS),
+    ]
+    optimizers = [torch.optim.Adam(loss.parameters(), lr=1e-2) for loss in losses]
+    for step in range(3):
+        batch = transitions(32, 1, mask_prob=1.0, seed=step)
+        for loss, optimizer in zip(losses, optimizers):
+            loss.make_value_estimator(gamma=0.99)
+            optimizer.zero_grad()
+            loss(batch.clone())["loss"].backward()
+            optimizer.step()
+    for key, value in actor.network.trainable.params.items(include_nested=True, leaves_only=True):
+        torch.testing.assert_close(value[0], single.get_parameter(".".join(key)), rtol=1e-5, atol=1e-6)
+
+
+def test_each_env_acts_with_one_head_per_episode_drawn_again_at_its_reset():
+    env = make_env("mountaincar", num_envs=4, seed=0, max_episode_steps=5)  # episodes of 5 steps
+    env.append_transform(BootstrapHeads(num_heads=50, mask_prob=0.5))
+    torch.manual_seed(0)
+    rollout = env.rollout(15, break_when_any_done=False)  # three episodes per env
+    heads = rollout["head"].reshape(4, 3, 5)
+    assert bool((heads == heads[..., :1]).all())  # constant within an episode
+    assert bool((heads[:, 1:, 0] != heads[:, :-1, 0]).any())  # drawn again at each reset
+    assert 0.4 < rollout["next", "bootstrap_mask"].float().mean() < 0.6
+
+
+def test_the_actor_acts_with_its_head_while_exploring_and_with_the_heads_mean_when_greedy():
+    actor = ensemble(4)
+    observation = torch.randn(5, OBSERVATION_SIZE)
+    heads = actor.network(observation.unsqueeze(-2).expand(5, 4, OBSERVATION_SIZE))
+    head = torch.tensor([0, 1, 2, 3, 1])
+    with set_exploration_type(ExplorationType.RANDOM):
+        exploring = actor(TensorDict(observation=observation, head=head, batch_size=[5]))
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        greedy = actor(TensorDict(observation=observation, head=head, batch_size=[5]))
+    torch.testing.assert_close(exploring["action_value"], heads[torch.arange(5), head])
+    torch.testing.assert_close(greedy["action_value"], heads.mean(-2))
+    assert torch.equal(greedy["action"].argmax(-1), heads.mean(-2).argmax(-1))
+
+
+@pytest.mark.parametrize("num_heads, mask_prob", [(0, 0.5), (3, 1.5), (3, -0.1)])
+def test_no_heads_or_a_mask_probability_outside_zero_to_one_is_refused(num_heads, mask_prob):
+    with pytest.raises(ValueError, match=r"num_heads must be positive and mask_prob in \[0, 1\]"):
+        BootstrapHeads(num_heads=num_heads, mask_prob=mask_prob)
+
+
+def test_the_actor_compiles_with_fullgraph_and_acts_as_the_eager_one():
+    actor = ensemble(4)
+    compiled = torch.compile(actor, fullgraph=True, backend="aot_eager")
+    td = TensorDict(observation=torch.randn(6, OBSERVATION_SIZE), head=torch.arange(6) % 4, batch_size=[6])
+    with set_exploration_type(ExplorationType.RANDOM):
+        assert torch.equal(compiled(td.clone())["action"], actor(td.clone())["action"])

@@ -1,0 +1,165 @@
+"""Bootstrapped DQN with randomized prior functions (Osband et al. 2016; Osband, Aslanides and Cassirer 2018).
+
+An ensemble of ``K`` Q-networks (heads), each a trainable network plus a fixed random
+prior network scaled by ``prior_scale`` (``Q_k = f_k + beta p_k``), stacked as TorchRL's
+``MultiAgentMLP`` (one vmapped call for all heads). The actor acts with one head per
+episode (the index an env transform, :class:`~torchrl_mbe.envs.transforms.BootstrapHeads`,
+draws at each reset and carries in the tensordict) and greedily by the heads' mean.
+:class:`~torchrl_mbe.objectives.bootstrap.BootstrapDQNLoss` trains each head on its own
+bootstrap mask, with its own target network.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
+from torch import nn
+from torchrl.data import TensorSpec
+from torchrl.envs.utils import ExplorationType, exploration_type
+from torchrl.modules import QValueActor, QValueModule
+
+from torchrl_mbe.modules.networks import make_members_mlp
+
+__all__ = ["BootstrappedQValueActor", "EnsembleQNetwork", "HeadSelector"]
+
+
+class EnsembleQNetwork(nn.Module):
+    """``K`` Q-networks with randomized priors: ``[*B, K, F]`` observations (one per head) to ``[*B, K, A]`` values.
+
+    Head ``k`` computes ``f_k(x_k) + prior_scale * p_k(x_k)``: ``f`` and ``p`` are
+    :func:`~torchrl_mbe.modules.networks.make_members_mlp`'s (ReLU hidden layers
+    ``num_cells``, Glorot-uniform weights), ``p`` frozen at its initialization (no
+    gradient, never in an optimizer's steps).
+
+    Args:
+        observation_size (int): features ``F``.
+        num_actions (int): discrete actions ``A``.
+        num_cells (sequence of int): hidden layer widths of each head and of its prior.
+        num_heads (int): the ensemble's size ``K``.
+        prior_scale (float): ``beta``; ``0`` gives Bootstrapped DQN without priors.
+
+    Keyword Args:
+        input_norm (nn.Module, optional): applied to the observations first
+            (a :class:`~torchrl_mbe.modules.Standardize` of shape ``(F,)``).
+        device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules.bootstrap import EnsembleQNetwork
+        >>> network = EnsembleQNetwork(2, 3, [16], num_heads=5, prior_scale=3.0)
+        >>> network(torch.zeros(8, 5, 2)).shape
+        torch.Size([8, 5, 3])
+        >>> sum(p.numel() for p in network.parameters() if p.requires_grad) == sum(p.numel() for p in network.prior.parameters())
+        True
+    """
+
+    def __init__(
+        self,
+        observation_size: int,
+        num_actions: int,
+        num_cells: Sequence[int],
+        num_heads: int,
+        prior_scale: float,
+        *,
+        input_norm: nn.Module | None = None,
+        device: torch.device | str = "cpu",
+    ) -> None:
+        super().__init__()
+        self.num_heads, self.prior_scale = num_heads, prior_scale
+        self.input_norm = input_norm if input_norm is not None else nn.Identity()
+        self.trainable = make_members_mlp(observation_size, num_actions, num_cells, num_heads, device=device)
+        self.prior = make_members_mlp(observation_size, num_actions, num_cells, num_heads, device=device)
+        self.prior.requires_grad_(False)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        observation = self.input_norm(observation)
+        return self.trainable(observation) + self.prior_scale * self.prior(observation)
+
+
+class _AllHeads(nn.Module):
+    """One observation ``[*B, F]`` given to every head: ``[*B, K, A]``."""
+
+    def __init__(self, network: EnsembleQNetwork) -> None:
+        super().__init__()
+        self.network = network
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        heads = observation.unsqueeze(-2).expand(*observation.shape[:-1], self.network.num_heads, observation.shape[-1])
+        return self.network(heads)
+
+
+class HeadSelector(TensorDictModuleBase):
+    """The values an ensemble acts on: the episode's head while exploring, the heads' mean otherwise.
+
+    Under ``ExplorationType.RANDOM`` (a collector's default) or no exploration type,
+    and with ``head_key`` in the tensordict, it takes head ``head_key``'s values of
+    ``[*B, K, A]``; under ``DETERMINISTIC`` (evaluation), or without a head, the mean
+    over heads: the greedy policy of the ensemble's mean Q-value, smoother than a
+    vote (which ties with an even number of heads) and the estimate the heads are trained towards.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.envs.utils import ExplorationType, set_exploration_type
+        >>> from torchrl_mbe.modules.bootstrap import HeadSelector
+        >>> values = torch.tensor([[[1.0, 0.0], [0.0, 3.0]]])  # one env, two heads, two actions
+        >>> td = TensorDict(action_value_heads=values, head=torch.tensor([0]), batch_size=[1])
+        >>> HeadSelector()(td)["action_value"].tolist()
+        [[1.0, 0.0]]
+        >>> with set_exploration_type(ExplorationType.DETERMINISTIC):
+        ...     HeadSelector()(td)["action_value"].tolist()
+        [[0.5, 1.5]]
+    """
+
+    def __init__(
+        self, heads_key: str = "action_value_heads", head_key: str = "head", out_key: str = "action_value"
+    ) -> None:
+        super().__init__()
+        self.in_keys, self.out_keys = [heads_key, head_key], [out_key]
+        self.heads_key, self.head_key, self.out_key = heads_key, head_key, out_key
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        heads = tensordict.get(self.heads_key)  # [*B, K, A]
+        head = tensordict.get(self.head_key, None)
+        if head is None or exploration_type() not in (ExplorationType.RANDOM, None):
+            return tensordict.set(self.out_key, heads.mean(-2))
+        index = head.reshape(*head.shape, 1, 1).expand(*head.shape, 1, heads.shape[-1])
+        return tensordict.set(self.out_key, heads.gather(-2, index).squeeze(-2))
+
+
+class BootstrappedQValueActor(TensorDictSequential):
+    """An ensemble's Q-value actor: every head's values, the acting head's (or the mean's), then TorchRL's ``QValueModule``.
+
+    It reads ``"observation"`` (and ``"head"``, written by
+    :class:`~torchrl_mbe.envs.transforms.BootstrapHeads`) and writes
+    ``"action_value_heads"`` ``[*B, K, A]``, ``"action_value"``, ``"action"`` and
+    ``"chosen_action_value"`` as TorchRL's ``QValueActor`` does. :attr:`heads_actor` is
+    the same network as a ``QValueActor`` over a ``[*B, K]`` batch (each head reading its
+    own copy of the transition), which the loss trains.
+
+    Args:
+        network (EnsembleQNetwork): the heads.
+        spec (TensorSpec): the (one-hot) action spec.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> from torchrl.data import OneHot
+        >>> from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
+        >>> actor = BootstrappedQValueActor(EnsembleQNetwork(2, 3, [16], num_heads=4, prior_scale=5.0), OneHot(3))
+        >>> step = actor(TensorDict(observation=torch.zeros(6, 2), head=torch.zeros(6, dtype=torch.long), batch_size=[6]))
+        >>> step["action_value_heads"].shape, step["action"].shape
+        (torch.Size([6, 4, 3]), torch.Size([6, 3]))
+    """
+
+    def __init__(self, network: EnsembleQNetwork, spec: TensorSpec) -> None:
+        super().__init__(
+            TensorDictModule(_AllHeads(network), in_keys=["observation"], out_keys=["action_value_heads"]),
+            HeadSelector(),
+            QValueModule(spec=spec),
+        )
+        self.network = network
+        self.heads_actor = QValueActor(network, spec=spec, in_keys=["observation"])
