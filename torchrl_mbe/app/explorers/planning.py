@@ -1,0 +1,267 @@
+"""The planning explorers: a dynamics model predicts each action's next state, a novelty scorer picks the rarest."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+import torch
+from omegaconf import DictConfig
+from tensordict import TensorDictBase
+from torchrl.data import ReplayBuffer
+
+from torchrl_mbe.app.explorers.base import (
+    EGreedyExplorer,
+    ExplorationConfig,
+    Explorer,
+    ExplorerContext,
+    eps_schedule,
+    field_names,
+)
+from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
+from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
+from torchrl_mbe.envs import resolve_env_id, task_of
+from torchrl_mbe.modules import novelty as scorers
+from torchrl_mbe.modules.dynamics import DynamicsModel
+from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
+from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.rundir import is_int
+
+WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
+
+
+@dataclass
+class PlanningExploration(ExplorationConfig):
+    """Explorers whose exploring steps plan with a dynamics model towards the rarest predicted state."""
+
+    window: int = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)"))
+    horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
+    # random until the model is this good
+    model_error_threshold: float | None = setting(None, NON_NEGATIVE.or_none())
+
+
+class DynamicsTraining:
+    """The dynamics model's own updates, on its own :class:`~torchrl_mbe.app.optim.UpdateSchedule` (``dynamics.learning_starts``, ``dynamics.updates_per_frame``).
+
+    Its input statistics are fitted on the replay buffer before the first update.
+    """
+
+    def __init__(self, model: DynamicsModel, loss: DynamicsLoss, dynamics: DictConfig, *, compile: bool) -> None:
+        self.model = model
+        self.step = GradientStep(
+            lambda batch: loss(batch)["loss_dynamics"],
+            adam(model.parameters(), dynamics.lr),
+            dynamics.max_grad_norm,
+            compile=compile,
+            num_members=model.num_members,
+        )
+        self.schedule = UpdateSchedule(dynamics.learning_starts, dynamics.updates_per_frame)
+        self.batch_size, self.last_loss = dynamics.batch_size, None
+
+    def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
+        for update in self.schedule.due(frames, new_frames):
+            if update == 0:
+                self.model.fit_normalization(replay_buffer, next_observation_key=SUCCESSOR_KEY)
+            self.last_loss = self.update(replay_buffer)
+
+    def update(self, replay_buffer: ReplayBuffer) -> float:
+        """One gradient step on its own batch from the replay buffer."""
+        return self.step(replay_buffer.sample(self.batch_size).exclude("index"))
+
+    def state_dict(self) -> dict:
+        return {
+            "optimizer": self.step.optimizer.state_dict(),
+            **self.schedule.state_dict(),
+            "last_loss": self.last_loss,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.step.optimizer.load_state_dict(state["optimizer"])
+        self.schedule.load_state_dict(state)
+        self.last_loss = state["last_loss"]
+
+
+class PlanningExplorer(EGreedyExplorer):
+    """The paper's exploration: with probability eps, the action whose predicted next state the novelty scorer rates rarest.
+
+    The policy is :class:`~torchrl_mbe.ModelBasedExplorationPolicy` around the actor;
+    the dynamics model is learned (``dynamics=mlp``) or the task's exact dynamics
+    (``dynamics=oracle``: MountainCar's physics, DeepSea's grid; nothing to train). Its error on every new batch, before
+    it is trained on, feeds the policy's warm-up switch. Subclasses choose the
+    novelty scorer (``scorer``).
+    """
+
+    schema = PlanningExploration
+    log_columns = ("loss_dynamics", "dynamics_val_error")
+    counters = ("dynamics_updates",)
+    scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
+
+    def __init__(
+        self,
+        policy: ModelBasedExplorationPolicy,
+        loss: DynamicsLoss,
+        training: DynamicsTraining | None,
+        num_members: int | None = None,
+    ) -> None:
+        super().__init__(policy, policy)
+        self.loss = loss
+        self.training = training  # None for the oracle, which has nothing to learn
+        self.num_members = num_members
+        self.val_error: torch.Tensor | None = None  # float64, [M] in a population
+
+    @classmethod
+    def build(cls, context: ExplorerContext) -> Explorer:
+        cfg = context.cfg
+        exploration = cfg.exploration
+        if cfg.dynamics.name == "oracle":
+            dynamics = task_of(resolve_env_id(cfg.env.name)).oracle(context.action_spec, **context.env_options)
+        else:
+            dynamics = DynamicsModel(
+                context.observation_size,
+                context.action_spec,
+                cfg.dynamics.num_cells,
+                num_members=context.num_members,
+                prior_scale=cfg.dynamics.prior_scale,
+                prior_num_cells=cfg.dynamics.prior_num_cells,
+                normalize=cfg.dynamics.normalize,
+                output=cfg.dynamics.output,
+                device=context.device,
+            )
+        novelty = cls.make_novelty(
+            exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device
+        )
+        planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
+        policy = ModelBasedExplorationPolicy(
+            context.actor, planner, **eps_schedule(cfg.algo), model_error_threshold=exploration.model_error_threshold
+        )
+        loss = DynamicsLoss(dynamics)
+        loss.set_keys(next_observation=SUCCESSOR_KEY)
+        training = (
+            DynamicsTraining(dynamics, loss, cfg.dynamics, compile=cfg.compile)
+            if isinstance(dynamics, DynamicsModel)
+            else None
+        )
+        return cls(policy, loss, training, context.num_members)
+
+    @classmethod
+    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+        """The novelty scorer, one window per environment (``kwargs``: ``batch_shape``, ``device``).
+
+        ``scorer(observation_size, window, **options)``, its options the fields
+        the explorer's schema adds to :class:`PlanningExploration` (the kernel's
+        ``bandwidth``, kNN's ``k``).
+        """
+        options = {name: exploration[name] for name in field_names(cls.schema) - field_names(PlanningExploration)}
+        return cls.scorer(observation_size, exploration.window, **options, **kwargs)
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        return f"{cls.schema.name}-oracle" if cfg.dynamics.name == "oracle" else cls.schema.name
+
+    def observe(self, batch: TensorDictBase) -> None:
+        """The dynamics error on the new frames (not yet trained on), smoothed (each member's); feeds the warm-up switch."""
+        frames = flatten_frames(one_step_transitions(batch), self.num_members)
+        with torch.no_grad():
+            error = self.loss(frames)["loss_dynamics"].double()
+        self.val_error = error if self.val_error is None else 0.9 * self.val_error + 0.1 * error
+        self.policy.report_model_error(float(self.val_error.max()))  # populations refuse model_error_threshold
+
+    def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
+        if self.training is not None:
+            self.training.learn(replay_buffer, frames, new_frames)
+
+    def log_fields(self) -> dict[str, float | None]:
+        val_error = self.val_error.tolist() if self.val_error is not None else None
+        return {
+            "loss_dynamics": self.training.last_loss if self.training is not None else None,
+            "dynamics_val_error": val_error,
+        }
+
+    def summary_fields(self) -> dict[str, int]:
+        return {"dynamics_updates": self.training.schedule.updates if self.training is not None else 0}
+
+    def state_dict(self) -> dict:
+        return {
+            "val_error": self.val_error,
+            "training": self.training.state_dict() if self.training is not None else None,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.val_error = state["val_error"]
+        if self.training is not None:
+            self.training.load_state_dict(state["training"])
+
+
+@dataclass
+class GaussianExploration(PlanningExploration):
+    name: str = "gaussian"  # the paper: Gaussian fitted to the window
+
+
+class GaussianExplorer(PlanningExplorer):
+    """``exploration=gaussian``, the paper's: the least likely state under a full-covariance Gaussian of the window."""
+
+    schema = GaussianExploration
+    scorer = scorers.RollingGaussianDensity
+
+    @classmethod
+    def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
+        return "oracle" if cfg.dynamics.name == "oracle" else cls.schema.name  # the paper's oracle experiment
+
+
+@dataclass
+class KernelExploration(PlanningExploration):
+    name: str = "kernel"  # Oh et al. (2015): Gaussian-kernel similarity to the window
+    bandwidth: float = setting(0.1, POSITIVE)
+
+
+class KernelExplorer(PlanningExplorer):
+    """``exploration=kernel``, the paper's baseline (Oh et al., 2015): the least similar state by a Gaussian kernel."""
+
+    schema = KernelExploration
+    scorer = scorers.GaussianKernelNovelty
+
+
+@dataclass
+class DiagonalExploration(PlanningExploration):
+    name: str = "diagonal"  # a Gaussian without correlations
+    # null: every visited state
+    window: int | None = setting(50, Rule(WINDOW.test, "an integer >= 2 (the paper uses 50)").or_none())
+    # each dimension's variance floor: predictions off it by less than its root look familiar
+    min_variance: float = setting(1e-8, POSITIVE)
+    # added to each variance before the floor: keeps the order the floor ties
+    added_variance: float = setting(0.0, NON_NEGATIVE)
+
+
+class DiagonalExplorer(PlanningExplorer):
+    """``exploration=diagonal``: a Gaussian of the window without correlations."""
+
+    schema = DiagonalExploration
+    scorer = scorers.DiagonalGaussianDensity
+
+
+@dataclass
+class KNearestExploration(PlanningExploration):
+    name: str = "knn"  # mean scaled distance to the k nearest states of the window
+    k: int = setting(5, POSITIVE_INT)
+
+
+class KNearestExplorer(PlanningExplorer):
+    """``exploration=knn``: the state farthest from its k nearest neighbours in the window."""
+
+    schema = KNearestExploration
+    scorer = scorers.KNearestNovelty
+
+
+@dataclass
+class KernelDensityExploration(PlanningExploration):
+    name: str = "kde"  # kernel density estimate, Scott's-rule bandwidth per dimension
+    window: int = setting(500, WINDOW)
+
+
+class KernelDensityExplorer(PlanningExplorer):
+    """``exploration=kde``: the least likely state under a kernel density estimate of the window."""
+
+    schema = KernelDensityExploration
+    scorer = scorers.KernelDensityNovelty
