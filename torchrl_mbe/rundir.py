@@ -114,6 +114,7 @@ SUMMARY_FIELDS: dict[str, tuple[Callable[[Any], bool], str, bool]] = {
     "solved": (_optional(lambda v: isinstance(v, bool)), "true, false or null", False),
     "solved_at_frames": (_optional(is_int), "an integer or null", False),
     "solved_at_wall_time_s": (_optional(is_number), "a number or null", False),
+    "record": (lambda v: isinstance(v, dict), "an object (commit, cpu, cores, device, versions, command)", False),
 }
 """Every field of ``summary.json``. ``tag`` and ``config_id`` (a fingerprint of every
 setting that shapes the result except the seed) say which experiment a run belongs
@@ -121,4 +122,5 @@ to, so the report groups only runs of the same config; ``solved`` compares the
 final evaluation with the threshold (``solved_by``: its mean ``return``, or its
 ``success`` rate, MiniGrid's rule); ``solved_at_*`` is the first periodic
 evaluation at or above it that an evaluation of ``eval.final_episodes`` episodes
-confirmed."""
+confirmed; ``record`` says where the result comes from (the code's commit, the machine,
+the library versions and the command)."""

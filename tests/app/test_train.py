@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+import torchrl
 
 import torchrl_mbe.app.population as population_module
 import torchrl_mbe.app.run as run_module
@@ -56,12 +57,14 @@ def test_deepsea_runs_within_bsuites_budget_of_10000_episodes_and_stops_at_the_t
     )  # deterministic: one episode says it
 
 
-def test_a_deepsea_run_directory_names_its_size(tmp_path, run_app):
+def test_a_deepsea_run_directory_names_its_size_and_its_summary_records_where_it_comes_from(tmp_path, run_app):
     result = run_app("env=deepsea", "env.size=6", cwd=tmp_path)
     assert result.returncode == 0, result.stderr
-    assert (
-        tmp_path / "runs" / "default" / "deepsea-6" / "dqn+diagonal" / "seed0" / "summary.json"
-    ).exists()  # the one-hot cells chose visit counts
+    summary_file = tmp_path / "runs" / "default" / "deepsea-6" / "dqn+diagonal" / "seed0" / "summary.json"
+    record = json.loads(summary_file.read_text())["record"]  # the one-hot cells chose visit counts (the path)
+    assert record["command"].startswith("python train.py env=deepsea env.size=6")
+    assert len(record["commit"]) == 40 and record["cores"] >= 1 and record["device"] == "cpu"
+    assert record["versions"]["torchrl"] == torchrl.__version__ and record["cpu"]
 
 
 def test_n_step_windows_longer_than_a_batch_fill_across_batches(tmp_path, compose_config):

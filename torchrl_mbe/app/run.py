@@ -11,16 +11,22 @@ from __future__ import annotations
 
 import json
 import logging
+import os
+import platform
+import subprocess
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import tensordict
 import torch
+import torchrl
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
 
+import torchrl_mbe
 from torchrl_mbe.app.checkpoints import save_atomically
 from torchrl_mbe.app.config import config_id, method_name, with_size
 from torchrl_mbe.app.explorers import logged_counters
@@ -250,6 +256,7 @@ def write_summary(run: Run, final: dict | None, counters: dict[str, int]) -> dic
         "solved": None if final is None or rule is None else final[rule.metric] >= rule.threshold,
         "solved_at_frames": progress.solved_at_frames,
         "solved_at_wall_time_s": progress.solved_at_wall_time_s,
+        "record": run_record(cfg),
     }
     (run.run_dir / SUMMARY).write_text(json.dumps(summary, indent=2))
     if run.visited:
@@ -257,6 +264,57 @@ def write_summary(run: Run, final: dict | None, counters: dict[str, int]) -> dic
         np.save(run.run_dir / VISITED_STATES, observations.numpy().astype(np.float32))
         np.save(run.run_dir / VISITED_EPISODES, episode_ids.numpy())
     return summary
+
+
+def run_record(cfg: DictConfig) -> dict:
+    """Where a result comes from: the code's commit, the machine, the library versions and the command.
+
+    ``commit`` is the checkout's ``HEAD`` (``None`` outside a git checkout; ``dirty``
+    says whether tracked files differed from it); ``command`` is the Hydra command
+    line (``None`` for a ``train(cfg)`` call from Python).
+    """
+    checkout = Path(torchrl_mbe.__file__).resolve().parents[1]
+    commit = _git(checkout, "rev-parse", "HEAD")
+    return {
+        "commit": commit,
+        "dirty": bool(_git(checkout, "status", "--porcelain", "--untracked-files=no")) if commit else None,
+        "cpu": _cpu_model(),
+        "cores": os.cpu_count(),
+        "device": torch.cuda.get_device_name(cfg.device) if str(cfg.device).startswith("cuda") else "cpu",
+        "versions": {
+            "torch": torch.__version__,
+            "torchrl": torchrl.__version__,
+            "tensordict": tensordict.__version__,
+            "torchrl_mbe": torchrl_mbe.__version__,
+        },
+        "command": _hydra_command(),
+    }
+
+
+def _git(checkout: Path, *args: str) -> str | None:
+    try:
+        done = subprocess.run(
+            ["git", "-C", str(checkout), *args], check=False, capture_output=True, text=True, timeout=10
+        )
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
+def _cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            return next(line.split(":", 1)[1].strip() for line in cpuinfo if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or platform.machine()
+
+
+def _hydra_command() -> str | None:
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return None
+    return " ".join(["python train.py", *HydraConfig.get().overrides.task])
 
 
 def summary_line(summary: dict, run_dir: Path | str) -> str:
