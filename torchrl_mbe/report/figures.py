@@ -12,6 +12,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from torchrl_mbe.envs.registry import EnvBounds
+from torchrl_mbe.report.intervals import performance_profile
 from torchrl_mbe.report.metrics import running_average
 from torchrl_mbe.report.runs import DEEPSEA, Run, deepsea_growth, solved_count, solved_threshold
 
@@ -234,4 +235,20 @@ def plot_coverage(env: str, best: dict[str, tuple[Run, float, int]], bounds: Env
         set_lim(min(bounds.low[dim], all_states[:, dim].min()), max(bounds.high[dim], all_states[:, dim].max()))
     fig.colorbar(scatter, ax=list(axes), label="episode", ticks=MaxNLocator(integer=True))
     fig.suptitle(f"{env}: visited states ({bins}x{bins} grid coverage)")
+    return save_figure(fig, path)
+
+
+def plot_performance_profiles(scores: dict[str, dict[str, np.ndarray]], path: Path) -> Path:
+    """Each method's fraction of runs (each task weighing the same) whose normalized score exceeds each threshold."""
+    thresholds = np.linspace(0.0, 1.5, 61)
+    fig = Figure(figsize=(6.5, 4.5), layout="constrained")
+    ax = fig.add_subplot()
+    for method, per_task in scores.items():
+        ax.plot(thresholds, performance_profile(per_task, thresholds), label=method)
+    ax.axvline(1.0, color="grey", linestyle=":", linewidth=1)
+    ax.set_xlabel("normalized score threshold (1: the solved threshold)")
+    ax.set_ylabel("fraction of runs above it")
+    ax.set_title("Performance profiles across tasks", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
     return save_figure(fig, path)

@@ -9,12 +9,14 @@ from pathlib import Path
 import numpy as np
 
 from torchrl_mbe.envs.registry import EnvBounds
+from torchrl_mbe.report.across import across_tasks_rows
 from torchrl_mbe.report.figures import (
     plot_coverage,
     plot_deepsea_scaling,
     plot_frames_to_solved,
     plot_greedy_evaluations,
     plot_learning_curves,
+    plot_performance_profiles,
 )
 from torchrl_mbe.report.metrics import max_position, pairwise_coverage
 from torchrl_mbe.report.runs import (
@@ -386,6 +388,24 @@ def _best_runs(groups: dict[str, list[Run]], bounds: EnvBounds, bins: int) -> di
     return best
 
 
+def _across_tasks_section(runs: Sequence[Run], out_dir: Path) -> tuple[list[str], list[Path]]:
+    """The methods compared across tasks (:mod:`torchrl_mbe.report.across`): a table and the performance profiles."""
+    rows, scores = across_tasks_rows(runs)
+    if not rows:
+        return [], []
+    figure = plot_performance_profiles(scores, out_dir / "across_tasks_profiles.png")
+    header = ["method", "tasks", "runs", "normalized score, IQM [95% CI]", "budget to solved, IQM [95% CI]"]
+    note = (
+        "Interquartile means over every seed of every task, with stratified bootstrap 95% confidence intervals "
+        "(2,000 resamples of the seeds within each task). Normalized score: the final greedy return, 0 at the lowest "
+        "return of any episode of any run of the task and 1 at its solved threshold (the success rate on success-rate tasks); "
+        "budget to solved: frames to the first solved evaluation over the task's longest run (1 if never solved)."
+    )
+    written: list[Path] = []
+    lines = ["## Across tasks", "", note, "", *_table(header, rows), ""]
+    return [*lines, *_embed(figure, "performance profiles across tasks", written)], written
+
+
 def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100, bins: int = 20) -> list[Path]:
     """Writes the figures and ``results.md`` of ``runs`` into ``out_dir``; returns the written paths.
 
@@ -402,6 +422,9 @@ def write_report(runs: Sequence[Run], out_dir: str | Path, *, window: int = 100,
         env_lines, env_figures = _env_section(env, [r for r in runs if r.env == env], out_dir, window, bins)
         lines += env_lines
         written += env_figures
+    across_lines, across_figures = _across_tasks_section(runs, out_dir)
+    lines += across_lines
+    written += across_figures
     scaling = deepsea_scaling(runs)
     if scaling:
         scaling_lines, scaling_figures = _deepsea_scaling_section(scaling, out_dir, window)
