@@ -193,3 +193,18 @@ def test_a_population_resumes_where_it_stopped(exploration, tmp_path, compose_co
     torch.testing.assert_close(
         agents[1], agents[0], rtol=0, atol=0
     )  # every network, statistic and optimizer, bit for bit
+
+
+def test_a_population_split_into_processes_writes_every_members_run_and_resumes_each_part(tmp_path, compose_config):
+    overrides = ("population=3", "processes=2", "eval.episodes=0", "train.checkpoint_every_frames=128", *SMALL)
+    first = train(compose_config(*overrides, "train.max_frames=160"), tmp_path)
+    assert [member["frames"] for member in first["members"]] == [160, 160, 160]
+    assert first["run_dirs"] == [
+        str(tmp_path / "seeds0-1" / "seed0"),
+        str(tmp_path / "seeds0-1" / "seed1"),
+        str(tmp_path / "seed2"),
+    ]
+    resumed = train(compose_config(*overrides, "resume=true"), tmp_path)
+    assert [member["seed"] for member in resumed["members"]] == [0, 1, 2]
+    assert all(member["frames"] == 300 + 4 for member in resumed["members"])  # 19 batches of 16 frames
+    assert json.loads((tmp_path / "seed2" / SUMMARY).read_text())["frames"] == resumed["members"][2]["frames"]

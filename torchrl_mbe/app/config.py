@@ -182,6 +182,8 @@ class Config:
     seed: int = setting(0, NON_NEGATIVE_INT)
     # >1: agents of seeds seed .. seed+population-1 trained as one batched program
     population: int = setting(1, POSITIVE_INT)
+    # a population's members split into this many processes side by side (at most one per member)
+    processes: int = setting(1, POSITIVE_INT)
     device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
     tag: str = "default"  # part of the run directory; presets set their own
     resume: bool = False  # continue the run in hydra.run.dir from its last checkpoint
@@ -432,7 +434,17 @@ def config_id(cfg: DictConfig) -> str:
 
 
 # Keys that change where and how a run is shown, or how seeds share a process, not what a run (a member) computes.
-_PLACEMENT = ("resume", "logger", "progress_bar", "device", "torch_threads", "compile", "tag", "population")
+_PLACEMENT = (
+    "resume",
+    "logger",
+    "progress_bar",
+    "device",
+    "torch_threads",
+    "compile",
+    "tag",
+    "population",
+    "processes",
+)
 
 # Settings added after torchrl-mbe 0.2.0, with their values that change nothing that version computed.
 _ADDED_SETTINGS = {"env.size": None, "dynamics.output": "delta", "match_observation": True}

@@ -63,7 +63,7 @@ from torchrl_mbe.envs import resolve_env_id
 from torchrl_mbe.modules.networks import member_state_dict
 from torchrl_mbe.rundir import CHECKPOINT, SUMMARY
 
-__all__ = ["Agent", "Population", "Resumable", "StopOnInterrupt", "member_dir", "open_population"]
+__all__ = ["Agent", "Population", "Resumable", "StopOnInterrupt", "member_dir", "open_population", "population_summary"]
 
 log = logging.getLogger(__name__)
 tqdm.set_lock(threading.RLock())  # tqdm's default lock is a multiprocessing semaphore, left behind by a killed run
@@ -229,14 +229,9 @@ class Population:
         if self.size == 1:
             return self.summaries[0]
         summaries = [self.summaries[member] for member in range(self.size)]
-        finals = [summary["final_eval_return"] for summary in summaries]
-        return {
-            "population": self.size,
-            "members": summaries,
-            "run_dirs": [str(member_dir(self.run_dir, summary["seed"], self.size)) for summary in summaries],
-            "solved": sum(bool(summary["solved"]) for summary in summaries),
-            "final_eval_return": None if None in finals else statistics.fmean(finals),
-        }
+        return population_summary(
+            summaries, [str(member_dir(self.run_dir, summary["seed"], self.size)) for summary in summaries]
+        )
 
     def _member_part(self, batch: TensorDictBase, member: int) -> TensorDictBase:
         """A member's frames of a batch: the batch itself for a single run, ``batch[:, member]`` of a ``(num_envs, M, time)`` one."""
@@ -305,6 +300,19 @@ class Population:
     def _solved_count(self) -> int:
         running = sum(run.progress.solved_at_frames is not None for _, run in self.active())
         return running + sum(summary["solved_at_frames"] is not None for summary in self.summaries.values())
+
+
+def population_summary(members: list[dict], run_dirs: list[str]) -> dict:
+    """A population's summary: each member's summary and run directory, the number solved, the mean final greedy return
+    (``None`` if one is missing)."""
+    finals = [member["final_eval_return"] for member in members]
+    return {
+        "population": len(members),
+        "members": members,
+        "run_dirs": run_dirs,
+        "solved": sum(bool(member["solved"]) for member in members),
+        "final_eval_return": None if None in finals else statistics.fmean(finals),
+    }
 
 
 def member_dir(run_dir: Path, seed: int, population: int) -> Path:

@@ -12,10 +12,11 @@ from torchrl_mbe.app.config import check_config, register_configs
 from torchrl_mbe.app.dqn import train_dqn
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.observation import match_observation, named_on_command_line
+from torchrl_mbe.app.processes import train_in_processes
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.run import RunFinished
 
-__all__ = ["LOOPS", "train"]
+__all__ = ["LOOPS", "run_loop", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -27,8 +28,9 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     """Trains the configured agent and returns the run's summary (``summary.json``).
 
     With ``population=M > 1`` it trains M agents together, each writing its own run
-    directory (:mod:`torchrl_mbe.app.population`), and returns the population's
-    summary, each member's under ``"members"``.
+    directory (:mod:`torchrl_mbe.app.population`), in ``processes`` processes side by side
+    (:mod:`torchrl_mbe.app.processes`), and returns the population's summary, each
+    member's under ``"members"``.
 
     Every config value is checked before anything is built
     (:class:`~torchrl_mbe.app.config.ConfigError` names a bad one). The explorer then
@@ -52,6 +54,13 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         )
         check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
+    if cfg.population > 1 and cfg.processes > 1:
+        return train_in_processes(cfg, run_dir, run_loop)
+    return run_loop(cfg, run_dir)
+
+
+def run_loop(cfg: DictConfig, run_dir: Path) -> dict:
+    """Runs the loop of ``algo=`` on a checked config in this process (one part of a population split into processes)."""
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # TorchRL announces every storage it initializes
     if cfg.torch_threads:
         torch.set_num_threads(cfg.torch_threads)
