@@ -24,12 +24,11 @@ test: it prints a table and asserts nothing.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from collections.abc import Callable, Sequence
 
 import torch
-from timing import median_seconds, print_rows
+from timing import median_seconds, print_machine_line, print_rows
 
 from torchrl_mbe import RollingGaussianDensity
 
@@ -118,10 +117,7 @@ def main() -> None:
     torch.set_flush_denormal(True)  # as train(cfg) does
     torch.manual_seed(0)
     started = time.perf_counter()
-    print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {os.cpu_count()} CPUs, "
-        f"1-minute load average {os.getloadavg()[0]:.2f} at start"
-    )
+    print_machine_line()
     bench_refit(args.features)
     print(f"\n{time.perf_counter() - started:.0f} s")
 

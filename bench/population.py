@@ -24,13 +24,12 @@ from __future__ import annotations
 import argparse
 import functools
 import logging
-import os
 import time
 from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDict
-from timing import median_seconds, print_rows
+from timing import median_seconds, print_machine_line, print_rows
 from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
@@ -193,10 +192,7 @@ def main() -> None:
     torch.set_flush_denormal(True)  # as train(cfg) does
     torch.manual_seed(0)
     started = time.perf_counter()
-    print(
-        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {os.cpu_count()} CPUs, "
-        f"1-minute load average {os.getloadavg()[0]:.2f} at start"
-    )
+    print_machine_line()
     bench_sampling()
     bench_updates()
     print(f"\n{time.perf_counter() - started:.0f} s")

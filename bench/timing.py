@@ -7,9 +7,12 @@ load during a run hits them alike; each figure is a median over blocks.
 from __future__ import annotations
 
 import math
+import os
 import statistics
 import time
 from collections.abc import Callable, Sequence
+
+import torch
 
 __all__ = ["median_seconds", "print_rows"]
 
@@ -60,3 +63,11 @@ def print_rows(title: str, header: Sequence[str], rows: list[Sequence[str]]) -> 
     print(f"\n[{title}]")
     for row in (header, *rows):
         print("  " + "  ".join(cell.rjust(width) for cell, width in zip(row, widths)))
+
+
+def print_machine_line() -> None:
+    """The torch version, threads, CPUs and load at the start: what a bench's figures depend on."""
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} thread(s), {os.cpu_count()} CPUs, "
+        f"1-minute load average {os.getloadavg()[0]:.2f} at start"
+    )

@@ -12,10 +12,10 @@ from torchrl.collectors import Collector
 
 from torchrl_mbe.app import ConfigError, check_config, train
 from torchrl_mbe.app.checkpoints import load_safely
-from torchrl_mbe.app.config import config_id
 from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
 from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.explorers import RNDExplorer, logged_columns
+from torchrl_mbe.app.identity import config_id
 from torchrl_mbe.app.replay import PopulationReplayBuffer, ReplayTransitions
 from torchrl_mbe.modules import Standardize
 from torchrl_mbe.report.runs import load_runs

@@ -462,7 +462,7 @@ def test_ctrl_c_during_the_final_evaluation_exits_with_the_checkpoint_and_the_re
 def test_a_setting_added_since_0_2_leaves_the_config_id_of_runs_that_leave_it_at_its_old_behaviour(compose_config):
     from omegaconf import OmegaConf
 
-    from torchrl_mbe.app.config import config_id
+    from torchrl_mbe.app.identity import config_id
 
     cfg = compose_config()
     as_0_2_wrote_it = OmegaConf.create(OmegaConf.to_container(cfg))

@@ -12,7 +12,8 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 
-from torchrl_mbe.app.config import ConfigError, config_differences
+from torchrl_mbe.app.config import ConfigError
+from torchrl_mbe.app.identity import config_differences
 from torchrl_mbe.rundir import CHECKPOINT
 
 __all__ = ["CHECKPOINT_FORMAT", "load_safely", "read_checkpoint", "refuse_to_overwrite", "save_atomically"]

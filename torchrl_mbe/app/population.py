@@ -41,9 +41,10 @@ from torchrl.envs import EnvBase
 from tqdm.auto import tqdm
 
 from torchrl_mbe.app.checkpoints import CHECKPOINT_FORMAT, read_checkpoint, refuse_to_overwrite, save_atomically
-from torchrl_mbe.app.config import ConfigError, seeds_name
+from torchrl_mbe.app.config import ConfigError
 from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.evaluation import evaluate, evaluate_members
+from torchrl_mbe.app.identity import seeds_name
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.app.rollout import EnvState
 from torchrl_mbe.app.run import (

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from torchrl_mbe.app.config import seeds_name
+from torchrl_mbe.app.identity import seeds_name
 from torchrl_mbe.app.population import StopOnInterrupt, population_summary
 
 __all__ = ["split_members", "train_in_processes"]

@@ -28,8 +28,8 @@ from tensordict import TensorDictBase
 
 import torchrl_mbe
 from torchrl_mbe.app.checkpoints import save_atomically
-from torchrl_mbe.app.config import config_id, method_name, with_size
 from torchrl_mbe.app.explorers import logged_counters
+from torchrl_mbe.app.identity import config_id, method_name, with_size
 from torchrl_mbe.app.loggers import RunLogger
 from torchrl_mbe.envs import finished_episodes, reached_goal
 from torchrl_mbe.envs.registry import SolvedRule, solved_rule

@@ -10,10 +10,66 @@ from torch import nn
 
 from torchrl_mbe.modules.novelty.window import RollingWindowNovelty
 
-__all__ = ["DiagonalGaussianDensity", "RollingGaussianDensity"]
+__all__ = ["DiagonalGaussianDensity", "GaussianDensity", "RollingGaussianDensity"]
 
 
-class RollingGaussianDensity(RollingWindowNovelty):
+class GaussianDensity(RollingWindowNovelty):
+    """What every Gaussian density of the window shares: its mean, its normalizer, ``log_prob`` and ``score``.
+
+    ``score(s) = -log N(s | loc, Sigma) = 0.5 * mahalanobis(s - loc) + log_normalizer``;
+    a subclass fits ``loc``, the Mahalanobis form and ``log_normalizer`` in ``_refit``
+    (:meth:`_store_log_normalizer` from ``log det Sigma``) and computes ``_mahalanobis``.
+    Eager and compiled runs share this one scoring path.
+
+    Keyword Args:
+        min_variance (float): absolute floor on each variance. Defaults to ``1e-8``.
+    """
+
+    def __init__(
+        self,
+        num_features: int | None,
+        window: int | None,
+        *,
+        batch_shape: Sequence[int] = (),
+        min_variance: float = 1e-8,
+        device: torch.device | str | None = None,
+    ) -> None:
+        super().__init__(None, window, batch_shape=batch_shape, device=device)
+        if min_variance <= 0:
+            raise ValueError(f"min_variance must be > 0, got {min_variance}.")
+        self.min_variance = float(min_variance)
+        if num_features is not None:
+            self._allocate(int(num_features))
+
+    def _allocate(self, num_features: int) -> None:
+        super()._allocate(num_features)
+        kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
+        self.register_buffer("loc", torch.zeros(*self.batch_shape, num_features, **kwargs))
+        self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
+
+    def log_prob(self, states: torch.Tensor) -> torch.Tensor:
+        """``log N(s | mu_F, Sigma_F)`` per state; zeros while the window is empty."""
+        if self._empty_eagerly():
+            return states.new_zeros(states.shape[:-1])
+        states = self._check_shape(states)
+        self._refit_if_stale()
+        mahalanobis = self._mahalanobis(states.to(self.loc) - self.loc)
+        return self._zeros_while_empty((-0.5 * mahalanobis - self.log_normalizer).to(states.dtype))
+
+    def score(self, states: torch.Tensor) -> torch.Tensor:
+        """``-log_prob(states)``: higher = rarer."""
+        return -self.log_prob(states)
+
+    def _mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+        """``x^T Sigma^-1 x`` per centered state."""
+        raise NotImplementedError
+
+    def _store_log_normalizer(self, log_det: torch.Tensor) -> None:
+        """Stores ``log((2 pi)^(D/2) sqrt(det Sigma))`` from ``log det Sigma``."""
+        self.log_normalizer.copy_(0.5 * (log_det + self.num_features * math.log(2 * math.pi)))
+
+
+class RollingGaussianDensity(GaussianDensity):
     """Multivariate Gaussian fitted to the last ``window`` visited states.
 
     The paper's novelty measure (Gou & Liu, "DQN with Model-Based Exploration"):
@@ -77,19 +133,15 @@ class RollingGaussianDensity(RollingWindowNovelty):
         min_correlation_eigenvalue: float = 1e-6,
         device: torch.device | str | None = None,
     ) -> None:
-        super().__init__(None, window, batch_shape=batch_shape, device=device)
-        if min_variance <= 0 or min_correlation_eigenvalue <= 0:
-            raise ValueError("min_variance and min_correlation_eigenvalue must be > 0.")
-        self.min_variance = float(min_variance)
+        if min_correlation_eigenvalue <= 0:
+            raise ValueError(f"min_correlation_eigenvalue must be > 0, got {min_correlation_eigenvalue}.")
         self.min_correlation_eigenvalue = float(min_correlation_eigenvalue)
-        if num_features is not None:
-            self._allocate(int(num_features))
+        super().__init__(num_features, window, batch_shape=batch_shape, min_variance=min_variance, device=device)
 
     def _allocate(self, num_features: int) -> None:
         super()._allocate(num_features)
         shape = (*self.batch_shape, num_features)
         kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
-        self.register_buffer("loc", torch.zeros(shape, **kwargs))
         if self._fits_low_rank():
             self.register_buffer("std", torch.ones(shape, **kwargs))
             self.register_buffer(
@@ -101,7 +153,6 @@ class RollingGaussianDensity(RollingWindowNovelty):
             )
         else:
             self.register_buffer("whitening", torch.zeros(*shape, num_features, **kwargs))
-        self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
 
     def _fits_low_rank(self) -> bool:
         """Whether the fit is the eigenpairs of the window's Gram matrix (more features than states), not a whitening."""
@@ -120,15 +171,8 @@ class RollingGaussianDensity(RollingWindowNovelty):
         inverse = torch.linalg.inv(self.whitening)
         return (inverse @ inverse.mT).to(self.states.dtype)
 
-    def log_prob(self, states: torch.Tensor) -> torch.Tensor:
-        """``log N(s | mu_F, Sigma_F)`` per state; zeros while the window is empty."""
-        if self._empty_eagerly():
-            return states.new_zeros(states.shape[:-1])
-        states = self._check_shape(states)
-        self._refit_if_stale()
-        centered = states.to(self.loc) - self.loc
-        mahalanobis = (self._low_rank_mahalanobis if self._fits_low_rank() else self._whitened_mahalanobis)(centered)
-        return self._zeros_while_empty((-0.5 * mahalanobis - self.log_normalizer).to(states.dtype))
+    def _mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+        return (self._low_rank_mahalanobis if self._fits_low_rank() else self._whitened_mahalanobis)(centered)
 
     def _whitened_mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
         whitened = (self.whitening @ centered.unsqueeze(-1)).squeeze(-1)
@@ -145,10 +189,6 @@ class RollingGaussianDensity(RollingWindowNovelty):
         projections = torch.einsum("...if,...f->...i", self.gram_eigenvectors, window_products)
         spanned_correction = ((1 / self.eigenvalues - 1 / floor) * projections.square()).sum(-1)
         return standardized.square().sum(-1) / floor + spanned_correction
-
-    def score(self, states: torch.Tensor) -> torch.Tensor:
-        """``-log_prob(states)``: higher = rarer."""
-        return -self.log_prob(states)
 
     def _refit(self) -> None:
         """Mean, factorization and normalizer of the window; slot order is fine, the fit ignores order."""
@@ -215,18 +255,13 @@ class RollingGaussianDensity(RollingWindowNovelty):
         self.whitening.copy_(whitening)
         self._store_log_normalizer(log_det)
 
-    def _store_log_normalizer(self, log_det: torch.Tensor) -> None:
-        """Stores ``log((2 pi)^(D/2) sqrt(det Sigma))`` from ``log det Sigma``."""
-        self.log_normalizer.copy_(0.5 * (log_det + self.num_features * math.log(2 * math.pi)))
 
-
-class DiagonalGaussianDensity(RollingGaussianDensity):
+class DiagonalGaussianDensity(GaussianDensity):
     """Gaussian with a diagonal covariance fitted to the last ``window`` visited states, or to all of them.
 
     ``score(s) = -log N(s | mu_F, diag(sigma_F^2))``: :class:`RollingGaussianDensity`
     with the correlations between dimensions dropped, so that a window whose
-    states move along a line is not read as a thin ellipse. Same arguments
-    (``min_correlation_eigenvalue`` has nothing to floor here).
+    states move along a line is not read as a thin ellipse.
 
     The fit keeps running sums of the states and of their squares (float64):
     each state is added as it enters the window and subtracted as it leaves, so
@@ -245,8 +280,7 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
 
     Keyword Args:
         added_variance (float): added to each dimension's variance. Defaults to ``0``.
-        **kwargs: those of :class:`RollingGaussianDensity` (``batch_shape``,
-            ``min_variance``, ``device``).
+        **kwargs: ``batch_shape``, ``min_variance``, ``device``, as for :class:`RollingGaussianDensity`.
 
     Examples:
         >>> import torch
@@ -287,14 +321,12 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         return f"{super().extra_repr()}, min_variance={self.min_variance:g}, added_variance={self.added_variance:g}"
 
     def _allocate(self, num_features: int) -> None:
-        RollingWindowNovelty._allocate(self, num_features)
+        super()._allocate(num_features)
         shape = (*self.batch_shape, num_features)
         kwargs = {"dtype": torch.float64, "device": self.num_seen.device}
         self.register_buffer("state_sum", torch.zeros(shape, **kwargs))
         self.register_buffer("state_square_sum", torch.zeros(shape, **kwargs))
-        self.register_buffer("loc", torch.zeros(shape, **kwargs))
         self.register_buffer("inverse_std", torch.ones(shape, **kwargs))
-        self.register_buffer("log_normalizer", torch.zeros(self.batch_shape, **kwargs))
 
     def _before_push(self, states: torch.Tensor) -> None:
         """Adds the entering states to the sums and takes out the ones they overwrite in the window."""
@@ -334,7 +366,7 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         self.inverse_std.copy_(1 / std)
         self._store_log_normalizer(2 * std.log().sum(-1))
 
-    def _whitened_mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
+    def _mahalanobis(self, centered: torch.Tensor) -> torch.Tensor:
         return (centered * self.inverse_std).square().sum(-1)
 
     @property
@@ -342,10 +374,6 @@ class DiagonalGaussianDensity(RollingGaussianDensity):
         """The floored diagonal covariance the density uses, ``(*batch_shape, D, D)``."""
         self._refit_if_stale()
         return torch.diag_embed(self.inverse_std.pow(-2)).to(torch.float32)
-
-    def _fits_low_rank(self) -> bool:
-        """Never: with no correlations there are no eigenpairs, the fit is ``1 / std`` per dimension at every size."""
-        return False
 
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
         if self.num_features is None and prefix + "state_sum" in state_dict:  # window=None keeps no states to size from
