@@ -37,8 +37,9 @@ QUICK = (
     "env.num_envs=1",
     "collector.frames_per_batch=16",
     "train.stop_when_solved=false",
+    "processes=1",
 )
-"""A few hundred frames on one env, 16 frames per batch: every part runs, nothing is learned."""
+"""A few hundred frames on one env, 16 frames per batch, one process: every part runs, nothing is learned."""
 
 
 @pytest.fixture

@@ -41,13 +41,16 @@ def split_members(seed: int, population: int, processes: int) -> list[tuple[int,
     return list(zip(firsts, sizes))
 
 
-def train_in_processes(cfg: DictConfig, run_dir: Path, loop: Callable[[DictConfig, Path], dict]) -> dict:
-    """Runs ``loop(part_cfg, part_dir)`` for each part of ``cfg.population`` in its own process; the population's summary.
+def train_in_processes(
+    cfg: DictConfig, run_dir: Path, loop: Callable[[DictConfig, Path], dict], processes: int
+) -> dict:
+    """Runs ``loop(part_cfg, part_dir)`` for each of ``processes`` parts of ``cfg.population``, each in its own process;
+    returns the population's summary.
 
     Raises:
         SystemExit: a Ctrl-C stopped the parts (each saved its checkpoint); the message says how to continue.
     """
-    parts = split_members(cfg.seed, cfg.population, cfg.processes)
+    parts = split_members(cfg.seed, cfg.population, processes)
     log.info(
         "population=%d in %d processes side by side: seeds %s",
         cfg.population,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 
 import torch
@@ -54,8 +55,9 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         )
         check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
-    if cfg.population > 1 and cfg.processes > 1:
-        return train_in_processes(cfg, run_dir, run_loop)
+    processes = cfg.processes or os.cpu_count() or 1
+    if cfg.population > 1 and processes > 1:
+        return train_in_processes(cfg, run_dir, run_loop, processes)
     return run_loop(cfg, run_dir)
 
 
