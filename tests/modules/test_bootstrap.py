@@ -9,7 +9,7 @@ import pytest
 import torch
 from tensordict import TensorDict
 from torch import nn
-from torchrl.data import OneHot
+from torchrl.data import Composite, OneHot
 from torchrl.envs import GymEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MLP, QValueActor
@@ -137,6 +137,13 @@ def test_the_actor_acts_with_its_head_while_exploring_and_with_the_heads_mean_wh
 def test_no_heads_or_a_mask_probability_outside_zero_to_one_is_refused(num_heads, mask_prob):
     with pytest.raises(ValueError, match=r"num_heads must be positive and mask_prob in \[0, 1\]"):
         BootstrapHeads(num_heads=num_heads, mask_prob=mask_prob)
+
+
+def test_the_actor_takes_a_composite_spec_and_declares_its_outputs_as_a_q_value_actor_does():
+    actor = BootstrappedQValueActor(EnsembleQNetwork(2, 3, [16], 4, 5.0), Composite(action=SPEC))
+    out = actor(TensorDict(observation=torch.zeros(6, 2), head=torch.zeros(6, dtype=torch.long), batch_size=[6]))
+    assert out["action"].shape == (6, 3) and bool((out["action"].sum(-1) == 1).all())  # one-hot actions
+    assert set(actor.spec.keys()) == set(QValueActor(MLP(out_features=3), spec=SPEC).spec.keys())
 
 
 def test_the_actor_compiles_with_fullgraph_and_acts_as_the_eager_one():

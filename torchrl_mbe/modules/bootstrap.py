@@ -142,7 +142,7 @@ class BootstrappedQValueActor(TensorDictSequential):
 
     Args:
         network (EnsembleQNetwork): the heads.
-        spec (TensorSpec): the (one-hot) action spec.
+        spec (TensorSpec): the (one-hot) action spec, or a ``Composite`` with an ``"action"`` entry.
 
     Examples:
         >>> import torch
@@ -163,3 +163,4 @@ class BootstrappedQValueActor(TensorDictSequential):
         )
         self.network = network
         self.heads_actor = QValueActor(network, spec=spec, in_keys=["observation"])
+        self.spec = self.heads_actor.spec  # what a QValueActor declares: the action, its values
