@@ -141,7 +141,7 @@ def test_no_heads_or_a_mask_probability_outside_zero_to_one_is_refused(num_heads
 
 def test_the_actor_takes_a_composite_spec_and_declares_its_outputs_as_a_q_value_actor_does():
     actor = BootstrappedQValueActor(EnsembleQNetwork(2, 3, [16], 4, 5.0), Composite(action=SPEC))
-    out = actor(TensorDict(observation=torch.zeros(6, 2), head=torch.zeros(6, dtype=torch.long), batch_size=[6]))
+    out = actor(TensorDict(observation=torch.randn(6, 2), head=torch.zeros(6, dtype=torch.long), batch_size=[6]))
     assert out["action"].shape == (6, 3) and bool((out["action"].sum(-1) == 1).all())  # one-hot actions
     assert set(actor.spec.keys()) == set(QValueActor(MLP(out_features=3), spec=SPEC).spec.keys())
 
