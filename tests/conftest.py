@@ -65,8 +65,13 @@ def compose_default():
 
 
 def quick_for(overrides) -> list[str]:
-    """:data:`QUICK`, less its DQN settings when ``overrides`` pick REINFORCE."""
-    return [o for o in QUICK if not ("algo=reinforce" in overrides and o.startswith("algo."))]
+    """:data:`QUICK`, less the keys ``overrides`` set themselves and its DQN settings when they pick REINFORCE."""
+    named = {override.split("=", 1)[0] for override in overrides}
+    return [
+        o
+        for o in QUICK
+        if o.split("=", 1)[0] not in named and not ("algo=reinforce" in overrides and o.startswith("algo."))
+    ]
 
 
 @pytest.fixture

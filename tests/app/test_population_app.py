@@ -208,3 +208,14 @@ def test_a_population_split_into_processes_writes_every_members_run_and_resumes_
     assert [member["seed"] for member in resumed["members"]] == [0, 1, 2]
     assert all(member["frames"] == 300 + 4 for member in resumed["members"])  # 19 batches of 16 frames
     assert json.loads((tmp_path / "seed2" / SUMMARY).read_text())["frames"] == resumed["members"][2]["frames"]
+
+
+def test_the_parts_of_a_population_record_the_command_that_launched_them(tmp_path, run_app):
+    result = run_app(
+        "population=2", "processes=2", "algo.num_cells=[16,16]", f"hydra.run.dir={tmp_path}/run", cwd=tmp_path
+    )
+    assert result.returncode == 0, result.stderr
+    assert "population=2 in 2 processes side by side" in result.stdout + result.stderr
+    for seed in (0, 1):
+        record = json.loads((tmp_path / "run" / f"seed{seed}" / SUMMARY).read_text())["record"]
+        assert record["command"].startswith("python train.py population=2 processes=2")

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -21,6 +22,7 @@ from omegaconf import DictConfig
 
 from torchrl_mbe.app.identity import seeds_name
 from torchrl_mbe.app.population import StopOnInterrupt, population_summary
+from torchrl_mbe.app.run import LAUNCHING_COMMAND, hydra_command
 
 __all__ = ["split_members", "train_in_processes"]
 
@@ -57,6 +59,9 @@ def train_in_processes(
         len(parts),
         ", ".join(_seeds(first, size) for first, size in parts),
     )
+    command = hydra_command()
+    if command is not None:  # the parts' summaries record the command that launched them
+        os.environ[LAUNCHING_COMMAND] = command
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch threads or locks
     with StopOnInterrupt(), ProcessPoolExecutor(len(parts), mp_context=context) as pool:
         futures = [

@@ -43,6 +43,7 @@ __all__ = [
     "close_run",
     "confirmed_now",
     "crossed",
+    "hydra_command",
     "log_evaluation",
     "note_evaluation",
     "record_frames",
@@ -287,7 +288,7 @@ def run_record(cfg: DictConfig) -> dict:
             "tensordict": tensordict.__version__,
             "torchrl_mbe": torchrl_mbe.__version__,
         },
-        "command": _hydra_command(),
+        "command": hydra_command(),
     }
 
 
@@ -309,12 +310,17 @@ def _cpu_model() -> str:
         return platform.processor() or platform.machine()
 
 
-def _hydra_command() -> str | None:
+def hydra_command() -> str | None:
+    """The command line of this Hydra job (``None`` outside Hydra), or of the one that launched this process's part."""
     from hydra.core.hydra_config import HydraConfig
 
     if not HydraConfig.initialized():
-        return None
+        return os.environ.get(LAUNCHING_COMMAND)
     return " ".join(["python train.py", *HydraConfig.get().overrides.task])
+
+
+LAUNCHING_COMMAND = "TORCHRL_MBE_COMMAND"
+"""The environment variable through which a population's parts (:mod:`torchrl_mbe.app.processes`) learn their command."""
 
 
 def summary_line(summary: dict, run_dir: Path | str) -> str:
