@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -39,11 +40,10 @@ def test_the_learned_preset_solves_deepsea_10_on_every_member_within_400_episode
         "experiment=deepsea_learned", "env.size=10", "population=3", "train.episodes=400", "eval.every_frames=1000"
     )
     assert cfg.dynamics.name == "mlp" and cfg.dynamics.prior_scale > 0 and not cfg.dynamics.normalize
-    train(cfg, tmp_path)
-    for seed in range(3):
-        summary = json.loads((tmp_path / f"seed{seed}" / "summary.json").read_text())
+    for run_dir in train(cfg, tmp_path)["run_dirs"]:
+        summary = json.loads((Path(run_dir) / "summary.json").read_text())
         assert summary["solved"], (
-            f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+            f"member {summary['seed']} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
         )
 
 
@@ -53,11 +53,10 @@ def test_the_categorical_preset_solves_deepsea_10_on_every_member_within_400_epi
         "experiment=deepsea_categorical", "env.size=10", "population=2", "train.episodes=400", "eval.every_frames=1000"
     )
     assert cfg.dynamics.output == "categorical" and cfg.dynamics.prior_scale > 0
-    train(cfg, tmp_path)
-    for seed in range(2):
-        summary = json.loads((tmp_path / f"seed{seed}" / "summary.json").read_text())
+    for run_dir in train(cfg, tmp_path)["run_dirs"]:
+        summary = json.loads((Path(run_dir) / "summary.json").read_text())
         assert summary["solved"], (
-            f"member {seed} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
+            f"member {summary['seed']} did not solve: {summary['episodes']} episodes, first treasure {summary['first_success_episode']}"
         )
 
 

@@ -27,7 +27,7 @@ from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.population import StopOnInterrupt, open_population
-from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, check_replay_fits, make_replay_buffer
+from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
 from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
@@ -45,7 +45,6 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     """
     size = cfg.population  # 1 for a single run
     env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)  # (num_envs,), or (num_envs, M)
-    check_replay_fits(cfg.buffer, env, size, cfg.device, run_dir)
     agent = build_dqn_agent(cfg, env)
     replay_buffer = make_replay_buffer(cfg.buffer, cfg.device, member_dimension(cfg))
     # Built before a resume restores torch's generator: checking the policy draws from it.

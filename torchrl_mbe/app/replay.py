@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 from tensordict import TensorDict, TensorDictBase
 from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32  # private: see ReplayState
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
-from torchrl.envs import EnvBase, MultiStepTransform
+from torchrl.envs import MultiStepTransform
 
 from torchrl_mbe.app.settings import ConfigError
 from torchrl_mbe.rundir import CHECKPOINT
@@ -34,8 +34,9 @@ SUCCESSOR_KEY = "successor_observation"
 OBSERVATIONS_PER_TRANSITION = 3  # the observation, the one n steps on, and the one-step successor (SUCCESSOR_KEY)
 
 
-def check_replay_fits(buffer: DictConfig, env: EnvBase, population: int, device: str, run_dir: Path) -> None:
-    """Refuses, in one line, a replay buffer whose observations of ``env`` exceed the CPU memory available now,
+def check_replay_fits(buffer: DictConfig, observation_size: int, population: int, device: str, run_dir: Path) -> None:
+    """Refuses, in one line, a replay buffer whose observations (``observation_size`` features, for each of the
+    ``population`` runs) exceed the CPU memory available now,
     or whose checkpoints would not fit on ``run_dir``'s disk.
 
     TorchRL's ``LazyTensorStorage`` allocates its whole capacity at the first
@@ -44,7 +45,6 @@ def check_replay_fits(buffer: DictConfig, env: EnvBase, population: int, device:
     its first checkpoint. A checkpoint is written beside the previous one, so a run
     that has none yet needs room for two.
     """
-    observation_size = env.observation_spec_unbatched["observation"].shape[-1]
     needed = OBSERVATIONS_PER_TRANSITION * 4 * observation_size * buffer.size * population
     kept = f"{population} x {buffer.size:,}" if population > 1 else f"{buffer.size:,}"
     transitions = f"buffer.size={buffer.size}: {kept} transitions of {observation_size:,}-feature observations take about {needed / 2**30:.1f} GiB"

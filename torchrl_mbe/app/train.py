@@ -15,6 +15,7 @@ from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.observation import match_observation, named_on_command_line
 from torchrl_mbe.app.processes import train_in_processes
 from torchrl_mbe.app.reinforce import train_reinforce
+from torchrl_mbe.app.replay import check_replay_fits
 from torchrl_mbe.app.run import RunFinished
 
 __all__ = ["LOOPS", "run_loop", "train"]
@@ -55,6 +56,8 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
         )
         check_config(cfg)
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
+    if cfg.algo.name == "dqn":  # every process's buffers together, before any part starts
+        check_replay_fits(cfg.buffer, observation_spec.shape[-1], cfg.population, cfg.device, run_dir)
     processes = cfg.processes or os.cpu_count() or 1
     if cfg.population > 1 and processes > 1:
         return train_in_processes(cfg, run_dir, run_loop, processes)
