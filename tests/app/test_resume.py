@@ -59,7 +59,7 @@ def run_files(run_dir: Path) -> dict:
     summary = {
         k: v
         for k, v in json.loads((run_dir / SUMMARY).read_text()).items()
-        if "wall_time" not in k and k != "frames_per_s"
+        if "wall_time" not in k and k not in ("frames_per_s", "record")  # record: the command differs by resume=true
     }
     return {**tables, "summary": summary, "weights": load_safely(run_dir / CHECKPOINT)["agent"]["policy"]}
 
