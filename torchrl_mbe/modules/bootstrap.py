@@ -19,7 +19,7 @@ from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequ
 from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
-from torchrl.modules import QValueActor, QValueModule
+from torchrl.modules import QValueModule
 
 from torchrl_mbe.modules.networks import make_members_mlp
 
@@ -136,9 +136,9 @@ class BootstrappedQValueActor(TensorDictSequential):
     It reads ``"observation"`` (and ``"head"``, written by
     :class:`~torchrl_mbe.envs.transforms.BootstrapHeads`) and writes
     ``"action_value_heads"`` ``[*B, K, A]``, ``"action_value"``, ``"action"`` and
-    ``"chosen_action_value"`` as TorchRL's ``QValueActor`` does. :attr:`heads_actor` is
-    the same network as a ``QValueActor`` over a ``[*B, K]`` batch (each head reading its
-    own copy of the transition), which the loss trains.
+    ``"chosen_action_value"`` as TorchRL's ``QValueActor`` does, and declares its
+    ``spec`` as one does. :attr:`network` is what the loss trains; the weights are
+    held once, so ``state_dict`` has each of them once.
 
     Args:
         network (EnsembleQNetwork): the heads.
@@ -161,6 +161,9 @@ class BootstrappedQValueActor(TensorDictSequential):
             HeadSelector(),
             QValueModule(spec=spec),
         )
-        self.network = network
-        self.heads_actor = QValueActor(network, spec=spec, in_keys=["observation"])
-        self.spec = self.heads_actor.spec  # what a QValueActor declares: the action, its values
+        self.spec = self.module[-1].spec  # QValueModule's: the action, its values (what a QValueActor declares)
+
+    @property
+    def network(self) -> EnsembleQNetwork:
+        """The heads (held by the first module, which gives every head the observation)."""
+        return self.module[0].module.network

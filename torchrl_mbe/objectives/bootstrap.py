@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from tensordict import NestedKey, TensorDict, TensorDictBase
+from torchrl.modules import QValueActor
 
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor
 from torchrl_mbe.objectives.population import PopulationDQNLoss
@@ -25,7 +26,8 @@ class BootstrapDQNLoss(PopulationDQNLoss):
     ``DQNLoss`` takes on the same network.
 
     Args:
-        actor (BootstrappedQValueActor): the ensemble (its :attr:`heads_actor` is trained).
+        actor (BootstrappedQValueActor): the ensemble; its :attr:`network` is trained, as a ``QValueActor`` over
+            a ``[*B, K]`` batch (each head reading its own copy of the transition).
 
     Keyword Args:
         mask_key (NestedKey): the ``[*B, K]`` bootstrap mask. Defaults to ``("next", "bootstrap_mask")``,
@@ -54,13 +56,15 @@ class BootstrapDQNLoss(PopulationDQNLoss):
     def __init__(
         self, actor: BootstrappedQValueActor, *, mask_key: NestedKey = ("next", "bootstrap_mask"), **kwargs
     ) -> None:
-        super().__init__(actor.heads_actor, mask_key=mask_key, **kwargs)
+        super().__init__(
+            QValueActor(actor.network, spec=actor.spec, in_keys=["observation"]), mask_key=mask_key, **kwargs
+        )
         self.num_heads = actor.network.num_heads
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         mask = tensordict.get(self.mask_key)
         heads = tensordict.exclude(self.mask_key).unsqueeze(-1).expand(*tensordict.batch_size, self.num_heads)
-        heads.set(self.mask_key, mask.to(heads.get("next", "reward").dtype))
+        heads.set(self.mask_key, mask)
         losses = super().forward(heads)
         tensordict.set("td_error", heads.get("td_error").mean(-2))
         return losses

@@ -77,7 +77,7 @@ class PopulationDQNLoss(DQNLoss):
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         per_sample = super().forward(tensordict)["loss"]  # [*B, M]
         if self.mask_key is not None:
-            per_sample = per_sample * tensordict.get(self.mask_key)
+            per_sample = per_sample * tensordict.get(self.mask_key).to(per_sample.dtype)  # a bool mask too
         member_loss = per_sample.reshape(-1, per_sample.shape[-1]).mean(0)
         return TensorDict(loss=member_loss.sum(), member_loss=member_loss)
 
