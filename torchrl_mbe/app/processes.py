@@ -59,13 +59,11 @@ def train_in_processes(
         len(parts),
         ", ".join(_seeds(first, size) for first, size in parts),
     )
-    command = hydra_command()
-    if command is not None:  # the parts' summaries record the command that launched them
-        os.environ[LAUNCHING_COMMAND] = command
+    command = hydra_command()  # the parts' summaries record the command that launched them
     context = multiprocessing.get_context("spawn")  # a fresh interpreter: no forked torch threads or locks
     with StopOnInterrupt(), ProcessPoolExecutor(len(parts), mp_context=context) as pool:
         futures = [
-            pool.submit(_train_part, loop, _part_config(cfg, first, size), run_dir / seeds_name(first, size))
+            pool.submit(_train_part, loop, _part_config(cfg, first, size), run_dir / seeds_name(first, size), command)
             for first, size in parts
         ]
         summaries = [future.result() for future in futures]
@@ -88,8 +86,10 @@ def _seeds(first: int, size: int) -> str:
     return str(first) if size == 1 else f"{first}-{first + size - 1}"
 
 
-def _train_part(loop: Callable[[DictConfig, Path], dict], cfg: DictConfig, run_dir: Path) -> dict:
-    """A part's process: its log lines (prefixed with its seeds, also in its ``train.log``), then its loop."""
+def _train_part(loop: Callable[[DictConfig, Path], dict], cfg: DictConfig, run_dir: Path, command: str | None) -> dict:
+    """A part's process: its log lines (prefixed with its seeds, also in its ``train.log``), its command, then its loop."""
+    if command is not None:
+        os.environ[LAUNCHING_COMMAND] = command  # this process's own environment: the launching one keeps its
     run_dir.mkdir(parents=True, exist_ok=True)
     prefix = f"[seeds {_seeds(cfg.seed, cfg.population)}] %(asctime)s %(name)s %(levelname)s - %(message)s"
     logging.basicConfig(level=logging.INFO, format=prefix)
