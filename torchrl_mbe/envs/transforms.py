@@ -54,7 +54,7 @@ class BootstrapHeads(Transform):
         batch_size, device = tensordict_reset.batch_size, tensordict_reset.device
         heads = torch.randint(self.num_heads, batch_size, device=device)
         previous = tensordict.get(self.head_key, None) if tensordict is not None else None
-        reset = tensordict.get(self.parent._filtered_reset_keys[0], None) if tensordict is not None else None
+        reset = tensordict.get(self.parent.reset_keys[0], None) if tensordict is not None else None
         if previous is not None and reset is not None:
             heads = torch.where(reset.reshape(batch_size), heads, previous)
         tensordict_reset.set(self.head_key, heads)
