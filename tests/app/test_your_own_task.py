@@ -20,8 +20,8 @@ pytest.importorskip("minigrid")
     [
         ("FrozenLake-v1", "categorical"),  # Discrete: one-hot cells
         ("CliffWalking-v1", "categorical"),
-        ("Blackjack-v1", "delta"),  # Tuple
-        ("MiniGrid-DoorKey-5x5-v0", "delta"),  # Dict: image codes, direction, mission text
+        ("Blackjack-v1", "categorical"),  # Tuple of three Discrete
+        ("MiniGrid-DoorKey-5x5-v0", "categorical"),  # Dict: the cells' codes, the direction, a mission text
         ("Acrobot-v1", "delta"),  # Box
     ],
 )
@@ -79,7 +79,8 @@ def test_env_name_alone_uses_the_generic_settings_make_kwargs_reach_gymnasium_an
     )
     assert result.returncode == 0, result.stderr
     assert (
-        "One-hot observation (64 cells): dynamics.output=categorical" in result.stdout + result.stderr
+        "One-hot observation (64 entries, 1 categorical variable): dynamics.output=categorical"
+        in result.stdout + result.stderr
     )  # the window named: exploration kept
     summary = json.loads(next((tmp_path / "runs").rglob("summary.json")).read_text())
     assert summary["env"] == "FrozenLake8x8-v1" and summary["method"] == "dqn+gaussian"

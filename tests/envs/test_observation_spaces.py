@@ -7,11 +7,14 @@ import numpy as np
 import pytest
 import torch
 from gymnasium import spaces
+from torchrl.data import MultiOneHot
 from torchrl.envs import DoubleToFloat, GymEnv, TransformedEnv
 from torchrl.envs.utils import RandomPolicy
 
 from torchrl_mbe import make_env
-from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE
+from torchrl_mbe.envs.make import dqn_transforms
+from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE, make_gymnasium, wrap_gymnasium
+from torchrl_mbe.modules.dynamics import categorical_groups
 
 THREE_ACTIONS = spaces.Discrete(3)
 
@@ -37,7 +40,7 @@ class SpacesEnv(gym.Env):
 
 SPACES = {
     "test/MultiDiscrete-v0": (spaces.MultiDiscrete([3, 4]), 7),
-    "test/MultiBinary-v0": (spaces.MultiBinary(5), 5),
+    "test/MultiBinary-v0": (spaces.MultiBinary(5), 10),  # five variables of two values
     "test/Image-v0": (spaces.Box(0, 255, (6, 6, 3), np.uint8), 108),
     "test/Dict-v0": (
         spaces.Dict(position=spaces.Box(-1.0, 1.0, (2,)), room=spaces.Discrete(4), note=spaces.Text(8)),
@@ -67,7 +70,10 @@ for env_id, (observation_space, action_space, _) in REFUSED.items():
         ("FrozenLake-v1", 16),  # Discrete: one-hot
         ("Taxi-v4", 500),
         ("Blackjack-v1", 32 + 11 + 2),  # Tuple of three Discrete
-        ("MiniGrid-DoorKey-5x5-v0", 7 * 7 * 3 + 4),  # Dict: the 7x7x3 codes and the direction; the mission text dropped
+        (
+            "MiniGrid-DoorKey-5x5-v0",
+            4 + 7 * 7 * (11 + 6 + 3),
+        ),  # Dict: the direction and the 7x7 cells' codes, one-hot; the mission dropped
         *((env_id, size) for env_id, (_, size) in SPACES.items()),
     ],
 )
@@ -82,6 +88,39 @@ def test_every_observation_space_is_one_float_vector_the_same_in_one_env_and_in_
     )  # the first copy is seeded as the single env
     rollout = single.rollout(30, RandomPolicy(single.action_spec))
     assert rollout["observation"].dtype == rollout["next", "observation"].dtype == torch.float32
+
+
+@pytest.mark.parametrize(
+    "env_id, groups",
+    [
+        ("Blackjack-v1", [32, 11, 2]),
+        ("test/MultiDiscrete-v0", [3, 4]),
+        ("test/MultiBinary-v0", [2] * 5),
+        ("MiniGrid-DoorKey-5x5-v0", [4] + [11, 6, 3] * 49),  # direction, then each cell's object, colour and state
+    ],
+)
+def test_an_observation_of_categorical_variables_is_one_hot_per_variable_so_a_model_knows_which_entries_belong_together(
+    env_id, groups
+):
+    env = make_env(env_id, seed=0)
+    spec = env.observation_spec["observation"]
+    assert isinstance(spec, MultiOneHot) and categorical_groups(spec) == tuple(groups)
+    observations = env.rollout(30, RandomPolicy(env.action_spec))["observation"]
+    assert all(  # exactly one entry of each variable is on, in every observation
+        (part.sum(-1) == 1).all() for part in observations.split(groups, -1)
+    )
+
+
+def test_minigrids_one_hot_codes_are_the_cells_codes_it_returns():
+    minigrid = make_gymnasium("MiniGrid-DoorKey-5x5-v0")
+    env = TransformedEnv(wrap_gymnasium(minigrid), dqn_transforms(torch.long))
+    last = env.rollout(20, RandomPolicy(env.action_spec))[-1]
+    observation = minigrid.unwrapped.gen_obs()  # after the last step
+    parts = last["next", "observation"].split([4] + [11, 6, 3] * 49, -1)
+    assert parts[0].argmax() == observation["direction"]
+    assert torch.equal(
+        torch.stack([part.argmax() for part in parts[1:]]), torch.from_numpy(observation["image"]).flatten()
+    )
 
 
 @pytest.mark.parametrize("env_id", list(REFUSED))

@@ -3,7 +3,7 @@ from __future__ import annotations
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.data import Categorical, LazyTensorStorage, OneHot, TensorDictReplayBuffer
+from torchrl.data import Categorical, LazyTensorStorage, MultiOneHot, OneHot, TensorDictReplayBuffer
 
 from torchrl_mbe import DynamicsLoss, DynamicsModel
 
@@ -265,7 +265,7 @@ def fit(dynamics: DynamicsModel, data: TensorDict, steps: int, lr: float) -> Non
     optimizer = torch.optim.Adam(dynamics.net.parameters(), lr=lr)
     for _ in range(steps):
         optimizer.zero_grad()
-        loss(data)["loss_dynamics"].backward()
+        loss(data)["loss_dynamics"].sum().backward()  # a population: each member's loss, its own gradient
         optimizer.step()
 
 
@@ -388,3 +388,38 @@ def test_a_categorical_model_needs_raw_units_and_a_known_output():
         DynamicsModel(9, Categorical(2), output="categorical")
     with pytest.raises(ValueError, match=r"output must be one of \('delta', 'categorical'\), got 'softmax'"):
         DynamicsModel(9, Categorical(2), output="softmax", normalize=False)
+
+
+@pytest.mark.parametrize("num_members", [None, 2], ids=["single", "population"])
+def test_a_categorical_model_of_several_variables_predicts_each_one_with_its_own_softmax(num_members):
+    """A position (5 values) that the action moves and a colour (3 values) that cycles, one-hot each (a MultiOneHot spec)."""
+    position, colour, action = torch.meshgrid(torch.arange(5), torch.arange(3), torch.arange(2), indexing="ij")
+    position, colour, action = position.flatten(), colour.flatten(), action.flatten()
+    next_position, next_colour = (position + 2 * action - 1).clamp(0, 4), (colour + 1) % 3
+
+    def observation(position, colour):
+        observation = torch.cat([torch.eye(5)[position], torch.eye(3)[colour]], -1)
+        return observation if num_members is None else observation.unsqueeze(-2).expand(-1, num_members, -1)
+
+    member_action = action if num_members is None else action.unsqueeze(-1).expand(-1, num_members)
+    data = TensorDict(
+        {
+            "observation": observation(position, colour),
+            "action": member_action,
+            ("next", "observation"): observation(next_position, next_colour),
+        },
+        member_action.shape,
+    )
+    torch.manual_seed(0)
+    dynamics = DynamicsModel(
+        MultiOneHot([5, 3]), Categorical(2), (32,), num_members=num_members, normalize=False, output="categorical"
+    )
+    fit(dynamics, data, steps=300, lr=1e-2)
+    with torch.no_grad():
+        prediction = dynamics(data.clone())["predicted_observation"]
+    position_part, colour_part = prediction.split([5, 3], -1)
+    for part in (position_part, colour_part):  # a distribution per variable (a group of zeros, never seen, keeps ~0)
+        torch.testing.assert_close(part.sum(-1), torch.ones(member_action.shape), atol=1e-3, rtol=0)
+    assert torch.equal(position_part.argmax(-1), data["next", "observation"][..., :5].argmax(-1))
+    assert torch.equal(colour_part.argmax(-1), data["next", "observation"][..., 5:].argmax(-1))
+    assert DynamicsLoss(dynamics)(data)["loss_dynamics"].max() < 0.1  # both cross-entropies, summed

@@ -1,13 +1,14 @@
 """The explorer matched to the observation: read from the env's spec, never from its name.
 
 A one-hot observation (a TorchRL ``OneHot`` spec: DeepSea's cells, gymnasium's
-``Discrete`` states such as FrozenLake's, Taxi's, CliffWalking's) gets what
-``experiment=deepsea_categorical`` chose on DeepSea (docs/results.md, section 6):
-the categorical dynamics model (a softmax over the cells, a randomized prior and
-the offset that cancels it where the model has data) and the diagonal Gaussian of
-every visited state, which on one-hot cells ranks them by their visit counts; the
-Q-network reads the raw one-hot cells. Any other observation keeps the configured
-explorer and model.
+``Discrete`` states such as FrozenLake's, Taxi's, CliffWalking's; or a ``MultiOneHot``
+one of several categorical variables: MiniGrid's object, colour and state codes,
+Blackjack's three numbers) gets what ``experiment=deepsea_categorical`` chose on
+DeepSea (docs/results.md, section 6): the categorical dynamics model (a softmax over
+each variable's values, a randomized prior and the offset that cancels it where the
+model has data) and the diagonal Gaussian of every visited state, which on one-hot
+entries ranks them by their visit counts; the Q-network reads the raw one-hot
+entries. Any other observation keeps the configured explorer and model.
 
 Settings the command line names (``exploration=...``, ``dynamics.num_cells=...``),
 presets (``experiment=``, which set ``match_observation: false``) and
@@ -18,7 +19,7 @@ from __future__ import annotations
 
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
-from torchrl.data import OneHot, TensorSpec
+from torchrl.data import MultiOneHot, OneHot, TensorSpec
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration
@@ -46,15 +47,17 @@ COUNTS_EXPLORATION = DiagonalExploration(window=None, min_variance=1e-8, added_v
 
 
 def observation_kind(observation_spec: TensorSpec) -> str:
-    """``"one-hot"`` for a ``OneHot`` observation spec, else ``"vector"``.
+    """``"one-hot"`` for a ``OneHot`` or ``MultiOneHot`` observation spec, else ``"vector"``.
 
     Examples:
         >>> from torchrl_mbe import make_env
         >>> from torchrl_mbe.app.observation import observation_kind
         >>> observation_kind(make_env("FrozenLake-v1").observation_spec["observation"]), observation_kind(make_env("cartpole").observation_spec["observation"])
         ('one-hot', 'vector')
+        >>> observation_kind(make_env("Blackjack-v1").observation_spec["observation"])  # three categorical variables
+        'one-hot'
     """
-    return "one-hot" if isinstance(observation_spec, OneHot) else "vector"
+    return "one-hot" if isinstance(observation_spec, (OneHot, MultiOneHot)) else "vector"
 
 
 def match_observation(cfg: DictConfig, observation_spec: TensorSpec, named: set[str]) -> list[str]:

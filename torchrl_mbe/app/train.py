@@ -17,6 +17,7 @@ from torchrl_mbe.app.processes import train_in_processes
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.replay import check_replay_fits
 from torchrl_mbe.app.run import RunFinished
+from torchrl_mbe.modules.dynamics import categorical_groups
 
 __all__ = ["LOOPS", "run_loop", "train"]
 
@@ -49,9 +50,12 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     observation_spec = config_observation_spec(cfg)
     changes = match_observation(cfg, observation_spec, named_on_command_line())
     if changes:
+        variables = len(categorical_groups(observation_spec))
         log.info(
-            "One-hot observation (%d cells): %s. Name any of these on the command line, or match_observation=false, to choose otherwise.",
+            "One-hot observation (%d entries, %d categorical variable%s): %s. Name any of these on the command line, or match_observation=false, to choose otherwise.",
             observation_spec.shape[-1],
+            variables,
+            "s" * (variables > 1),
             ", ".join(changes),
         )
         check_config(cfg)

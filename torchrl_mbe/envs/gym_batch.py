@@ -10,9 +10,9 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl._utils import seed_generator  # private: the seed sequence SerialEnv gives its copies has no public name
-from torchrl.envs import EnvBase, GymWrapper
+from torchrl.envs import EnvBase
 
-from torchrl_mbe.envs.observations import make_gymnasium
+from torchrl_mbe.envs.observations import make_gymnasium, wrap_gymnasium
 
 __all__ = ["GymBatchEnv"]
 
@@ -67,7 +67,7 @@ class GymBatchEnv(EnvBase):
         batch_size = torch.Size([batch_size] if isinstance(batch_size, int) else batch_size)
         super().__init__(batch_size=batch_size, device=device)
         self.envs = [make_gymnasium(env_id, **(make_kwargs or {})) for _ in range(math.prod(batch_size))]
-        reference = GymWrapper(self.envs[0])  # TorchRL's reading of the gymnasium spaces
+        reference = wrap_gymnasium(self.envs[0])  # TorchRL's reading of the gymnasium spaces
         for spec in ("full_observation_spec", "full_action_spec", "full_reward_spec", "full_done_spec"):
             setattr(self, spec, getattr(reference, spec).expand(*batch_size).to(self.device))
         self._observations = [None] * len(self.envs)  # each copy's last gymnasium observation

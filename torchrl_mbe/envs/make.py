@@ -11,7 +11,6 @@ from torchrl.envs import (
     DoubleToFloat,
     DTypeCastTransform,
     EnvBase,
-    GymWrapper,
     InitTracker,
     RewardSum,
     StepCounter,
@@ -19,7 +18,7 @@ from torchrl.envs import (
 )
 
 from torchrl_mbe.envs.gym_batch import GymBatchEnv
-from torchrl_mbe.envs.observations import make_gymnasium
+from torchrl_mbe.envs.observations import make_gymnasium, wrap_gymnasium
 from torchrl_mbe.envs.registry import TASKS, resolve_env_id, task_of
 
 __all__ = ["dqn_transforms", "make_env"]
@@ -93,8 +92,8 @@ def make_env(
         torch.Size([2, 3, 5])
         >>> make_env("FrozenLake8x8-v1", is_slippery=False).observation_spec["observation"].shape  # one-hot cells, as floats
         torch.Size([64])
-        >>> make_env("MiniGrid-DoorKey-5x5-v0", num_envs=2).observation_spec["observation"].shape  # 7x7x3 codes and 4 directions
-        torch.Size([2, 151])
+        >>> make_env("MiniGrid-DoorKey-5x5-v0", num_envs=2).observation_spec["observation"].shape  # 4 directions, 7x7 cells of 11 objects, 6 colours, 3 states
+        torch.Size([2, 984])
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...
@@ -144,5 +143,5 @@ def _gym_env(
 ) -> EnvBase:
     """TorchRL's ``GymWrapper`` of :func:`~torchrl_mbe.envs.observations.make_gymnasium`'s env for ``(1,)``, else a ``GymBatchEnv`` of ``batch_shape``."""
     if batch_shape == (1,):
-        return GymWrapper(make_gymnasium(env_id, **make_kwargs), device=device)
+        return wrap_gymnasium(make_gymnasium(env_id, **make_kwargs), device=device)
     return GymBatchEnv(env_id, batch_shape, device=device, make_kwargs=make_kwargs)

@@ -1,12 +1,17 @@
 """Any gymnasium task as a DQN reads it: its observation as one float vector, its third-party suite imported.
 
-TorchRL's ``GymWrapper`` reads a ``Box`` and a ``Discrete`` observation (one-hot) itself;
-every other space (``MultiDiscrete``, ``MultiBinary``, ``Tuple``, ``Dict``, a ``Box`` of
-integers such as MiniGrid's 7x7x3 object/colour/state codes) is flattened by
-gymnasium's own ``FlattenObservation`` into float32, which TorchRL 0.14's
-``GymWrapper`` cannot do for a ``Tuple`` of unequal ``Discrete`` spaces
-(Blackjack) nor for MiniGrid's ``MissionSpace``. Entries that cannot be flattened
-(a mission text) are dropped, with one log line. Everything else is refused, in
+TorchRL's ``GymWrapper`` reads a ``Box`` and a ``Discrete`` observation (one-hot) itself.
+An observation made only of categorical variables (``MultiDiscrete``, ``MultiBinary``,
+``Tuple`` or ``Dict`` of these with ``Discrete``; MiniGrid's 7x7x3 object, colour and
+state codes and its direction) becomes one ``MultiDiscrete``, which
+:func:`wrap_gymnasium` reads as a ``MultiOneHot`` spec: one one-hot group per
+variable, which tells a model which entries belong together
+(:func:`~torchrl_mbe.modules.dynamics.categorical_groups`).
+Any other space (a ``Tuple`` or ``Dict`` holding a ``Box``, a ``Box`` of integers) is
+flattened by gymnasium's own ``FlattenObservation`` into float32, which TorchRL 0.14's
+``GymWrapper`` cannot do for a ``Tuple`` of unequal ``Discrete`` spaces (Blackjack)
+nor for MiniGrid's ``MissionSpace``. Entries that cannot be flattened (a mission
+text) are dropped, with one log line. Everything else is refused, in
 one line, before any work: a non-discrete action space, variable-size spaces
 (``Text``, ``Sequence``, ``Graph``) and observations of more than
 :data:`MAX_OBSERVATION_SIZE` numbers (pixels: the models here are MLPs on flat
@@ -17,14 +22,26 @@ from __future__ import annotations
 
 import importlib
 import logging
+import sys
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
+import torch
 from gymnasium import spaces
-from gymnasium.wrappers import DtypeObservation, FilterObservation, FlattenObservation
+from gymnasium.wrappers import DtypeObservation, FilterObservation, FlattenObservation, TransformObservation
+from torchrl.data import MultiOneHot
+from torchrl.envs import GymWrapper
 
-__all__ = ["MAX_EPISODE_STEPS", "MAX_OBSERVATION_SIZE", "SUITES", "check_gymnasium", "import_suite", "make_gymnasium"]
+__all__ = [
+    "MAX_EPISODE_STEPS",
+    "MAX_OBSERVATION_SIZE",
+    "SUITES",
+    "check_gymnasium",
+    "import_suite",
+    "make_gymnasium",
+    "wrap_gymnasium",
+]
 
 log = logging.getLogger(__name__)
 
@@ -71,9 +88,10 @@ def check_gymnasium(env_id: str, **make_kwargs: Any) -> None:
 def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
     """``gym.make(env_id, **make_kwargs)`` with its observation as :class:`~torchrl.envs.GymWrapper` reads it for DQN.
 
-    A ``Box`` of floats and a ``Discrete`` pass as they are; any other observation
-    space is flattened to a float32 vector (``Dict`` entries that cannot be, such as
-    a mission text, dropped first). A task without a time limit gets
+    A ``Box`` of floats and a ``Discrete`` pass as they are; an observation of
+    categorical variables becomes one ``MultiDiscrete``; any other observation space
+    is flattened to a float32 vector (``Dict`` entries that cannot be, such as a
+    mission text, dropped first). A task without a time limit gets
     :data:`MAX_EPISODE_STEPS`.
 
     Raises:
@@ -82,8 +100,8 @@ def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
 
     Examples:
         >>> from torchrl_mbe.envs.observations import make_gymnasium
-        >>> make_gymnasium("Blackjack-v1").observation_space  # three one-hot parts
-        Box(0.0, 1.0, (45,), float32)
+        >>> make_gymnasium("Blackjack-v1").observation_space  # three categorical variables
+        MultiDiscrete([32 11  2])
         >>> make_gymnasium("FrozenLake-v1", is_slippery=False).observation_space
         Discrete(16)
         >>> make_gymnasium("Pendulum-v1")
@@ -105,11 +123,34 @@ def make_gymnasium(env_id: str, **make_kwargs: Any) -> gym.Env:
         raise
 
 
+def wrap_gymnasium(env: gym.Env, device: torch.device | str | None = None) -> GymWrapper:
+    """TorchRL's ``GymWrapper`` of a :func:`make_gymnasium` env, its ``MultiDiscrete`` observation read as one ``MultiOneHot`` vector.
+
+    TorchRL reads a ``MultiDiscrete`` of unequal sizes so, and one of equal sizes
+    (``MultiBinary``'s bits, ``MultiDiscrete([3, 3])``) as a stack of ``OneHot`` rows.
+
+    Examples:
+        >>> from torchrl_mbe.envs.observations import make_gymnasium, wrap_gymnasium
+        >>> wrap_gymnasium(make_gymnasium("Blackjack-v1")).observation_spec["observation"].nvec
+        [32, 11, 2]
+    """
+    wrapper = GymWrapper(env, device=device)
+    space = env.observation_space
+    if isinstance(space, spaces.MultiDiscrete) and len(space.shape) == 1:
+        observation_spec = wrapper.observation_spec.clone().unlock_()
+        observation_spec["observation"] = MultiOneHot(
+            [int(size) for size in space.nvec], device=wrapper.device, dtype=torch.long
+        )
+        wrapper.observation_spec = observation_spec
+    return wrapper
+
+
 def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
     if not isinstance(env.action_space, spaces.Discrete):
         raise ValueError(
             f"{env_id} has a {env.action_space} action space; model-based exploration plans over one discrete action set (a Discrete action space)."
         )
+    env = _minigrid_codes(env)
     space = env.observation_space
     if isinstance(space, spaces.Dict):
         kept = [key for key, entry in space.spaces.items() if _flattenable(entry)]
@@ -134,7 +175,64 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
         isinstance(space, spaces.Box) and np.issubdtype(space.dtype, np.floating) and len(space.shape) == 1
     ):
         return env  # GymWrapper reads these as they are (a Discrete one-hot)
+    if _categorical(space):
+        return TransformObservation(
+            env, lambda observation: _category_indices(space, observation), _multi_discrete(space)
+        )
     return DtypeObservation(FlattenObservation(env), np.float32)
+
+
+def _minigrid_codes(env: gym.Env) -> gym.Env:
+    """MiniGrid's ``image`` (a ``Box`` of 0-255 bytes) declared as what it holds: an object, a colour and a state code per cell."""
+    if "minigrid" not in sys.modules:  # never imported: no MiniGrid task
+        return env
+    from minigrid.core.constants import COLOR_TO_IDX, OBJECT_TO_IDX, STATE_TO_IDX
+    from minigrid.minigrid_env import MiniGridEnv
+
+    if not isinstance(env.unwrapped, MiniGridEnv):
+        return env
+
+    image = env.observation_space["image"]
+    codes = np.broadcast_to([len(OBJECT_TO_IDX), len(COLOR_TO_IDX), len(STATE_TO_IDX)], image.shape)
+    space = spaces.Dict({**env.observation_space.spaces, "image": spaces.MultiDiscrete(codes)})
+    return TransformObservation(env, lambda observation: observation, space)
+
+
+def _categorical(space: spaces.Space) -> bool:
+    """Whether ``space`` holds only categorical variables (``Discrete``, ``MultiDiscrete``, ``MultiBinary``, and ``Tuple`` or ``Dict`` of these)."""
+    if isinstance(space, (spaces.Tuple, spaces.Dict)):
+        entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
+        return all(map(_categorical, entries))
+    return isinstance(space, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary))
+
+
+def _multi_discrete(space: spaces.Space) -> spaces.MultiDiscrete:
+    """The one ``MultiDiscrete`` of a categorical ``space``'s variables, in gymnasium's flattening order."""
+    return spaces.MultiDiscrete(np.concatenate(_category_counts(space)))
+
+
+def _category_counts(space: spaces.Space) -> list[np.ndarray]:
+    if isinstance(space, spaces.Discrete):
+        return [np.array([space.n])]
+    if isinstance(space, spaces.MultiDiscrete):
+        return [np.asarray(space.nvec).ravel()]
+    if isinstance(space, spaces.MultiBinary):
+        return [np.full(int(np.prod(space.shape)), 2)]
+    entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
+    return [counts for entry in entries for counts in _category_counts(entry)]
+
+
+def _category_indices(space: spaces.Space, observation: Any) -> np.ndarray:
+    """A categorical ``space``'s observation as the indices its :func:`_multi_discrete` space holds."""
+    if isinstance(space, spaces.Discrete):
+        return np.array([observation - space.start], dtype=np.int64)
+    if isinstance(space, spaces.MultiDiscrete):
+        return (np.asarray(observation) - space.start).ravel().astype(np.int64)
+    if isinstance(space, spaces.MultiBinary):
+        return np.asarray(observation).ravel().astype(np.int64)
+    if isinstance(space, spaces.Dict):
+        return np.concatenate([_category_indices(entry, observation[key]) for key, entry in space.spaces.items()])
+    return np.concatenate([_category_indices(entry, value) for entry, value in zip(space.spaces, observation)])
 
 
 def _flattenable(space: spaces.Space) -> bool:

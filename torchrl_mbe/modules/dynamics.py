@@ -8,7 +8,7 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import nn
-from torchrl.data import Composite, ReplayBuffer, TensorSpec
+from torchrl.data import Composite, MultiOneHot, ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
@@ -19,6 +19,7 @@ __all__ = [
     "DynamicsModel",
     "ExactDynamics",
     "action_indices",
+    "categorical_groups",
     "check_output",
     "num_discrete_actions",
     "one_hot_actions",
@@ -37,18 +38,40 @@ def check_output(output: str, normalize: bool) -> None:
         )
 
 
-def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
-    """The size of a flat observation: ``observation`` itself, or the last dimension of its spec.
+def categorical_groups(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> tuple[int, ...]:
+    """The sizes of the one-hot groups a flat observation is made of: a ``MultiOneHot`` spec's ``nvec``, else one group of every entry.
 
-    A ``Composite`` (an env's ``observation_spec``) is read through its ``observation_key`` entry.
+    A ``OneHot`` observation (DeepSea's cells, a gymnasium ``Discrete``) is one group; a
+    ``MultiOneHot`` one (a ``MultiDiscrete``, ``Tuple`` of ``Discrete`` or MiniGrid's
+    object, colour and state codes) one group per variable.
+
+    Examples:
+        >>> from torchrl.data import MultiOneHot, OneHot
+        >>> from torchrl_mbe.modules.dynamics import categorical_groups
+        >>> categorical_groups(MultiOneHot([4, 11, 6, 3])), categorical_groups(OneHot(9)), categorical_groups(9)
+        ((4, 11, 6, 3), (9,), (9,))
     """
+    observation = _observation_entry(observation, observation_key)
+    if isinstance(observation, MultiOneHot):
+        return tuple(int(size) for size in observation.nvec)
+    return (_observation_size(observation),)
+
+
+def _observation_entry(observation: int | TensorSpec, observation_key: NestedKey) -> int | TensorSpec:
+    """``observation`` itself, or a ``Composite``'s (an env's ``observation_spec``) ``observation_key`` entry."""
     if isinstance(observation, Composite):
         if observation_key not in observation.keys(include_nested=True):
             raise ValueError(
                 f"Expected the observation size or a spec with an entry {observation_key!r} "
                 f"(e.g. env.observation_spec), got a Composite with keys {list(observation.keys(True, True))}."
             )
-        observation = observation[observation_key]
+        return observation[observation_key]
+    return observation
+
+
+def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
+    """The size of a flat observation: ``observation`` itself, or the last dimension of its spec (a ``Composite``'s ``observation_key`` entry)."""
+    observation = _observation_entry(observation, observation_key)
     if isinstance(observation, TensorSpec):
         if not observation.shape:
             raise ValueError(
@@ -152,7 +175,9 @@ class DynamicsModel(TensorDictModuleBase):
             ``"categorical"``, for one-hot observations (DeepSea's grid, with
             ``normalize=False``), predicts the next observation as a softmax over its
             entries and one class more for an observation of zeros (DeepSea's after its
-            last row), trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy.
+            last row), trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy;
+            an observation of several one-hot groups (a ``MultiOneHot`` spec, such as
+            MiniGrid's codes: :func:`categorical_groups`) gets one softmax per group.
             A delta's predictions lie in an affine span of ``num_cells[-1] + 1``
             directions, fewer than the distinct next cells a large grid needs; a
             softmax's peak can sit on any entry (docs/results.md, section 6). With a
@@ -184,6 +209,11 @@ class DynamicsModel(TensorDictModuleBase):
         >>> grid = DynamicsModel(9, env.action_spec, [16], output="categorical", normalize=False)  # a 3 x 3 one-hot grid
         >>> grid.predict(torch.eye(9)[:1], env.action_spec.rand((1,))).sum(-1) <= 1  # probabilities over the 9 cells (the rest on zeros)
         tensor([True])
+        >>> from torchrl.data import MultiOneHot
+        >>> codes = DynamicsModel(MultiOneHot([4, 3]), env.action_spec, [16], output="categorical", normalize=False)
+        >>> prediction = codes.predict(torch.tensor([[0.0, 1, 0, 0, 1, 0, 0]]), env.action_spec.rand((1,)))
+        >>> prediction[:, :4].sum(-1) <= 1, prediction[:, 4:].sum(-1) <= 1  # one softmax per group
+        (tensor([True]), tensor([True]))
     """
 
     def __init__(
@@ -205,6 +235,7 @@ class DynamicsModel(TensorDictModuleBase):
     ) -> None:
         super().__init__()
         check_output(output, normalize)
+        groups = categorical_groups(observation_size, observation_key)
         observation_size = _observation_size(observation_size, observation_key)
         prior_num_cells = list(num_cells if prior_num_cells is None else prior_num_cells)
         if observation_size < 1 or any(int(cells) < 1 for cells in [*num_cells, *prior_num_cells]):
@@ -217,10 +248,16 @@ class DynamicsModel(TensorDictModuleBase):
         self.out_keys = [out_key]
         self.action_spec = discrete_action_spec(action_spec, action_key)
         self.observation_size = observation_size
+        self.groups = groups
         self.num_members = num_members
         in_features = observation_size + num_discrete_actions(self.action_spec)
         self.output = output
         self.prior_scale = prior_scale
+        padding, entry_index = _group_layout(groups)
+        self.register_buffer("_padding", padding.to(device), persistent=False)
+        self.register_buffer("_entry_index", entry_index.to(device), persistent=False)
+        group_of_entry = torch.repeat_interleave(torch.arange(len(groups)), torch.tensor(groups))
+        self.register_buffer("_group_of_entry", group_of_entry.to(device), persistent=False)
         self.net = self._make_net(in_features, list(num_cells), activation_class, device, self._net_outputs())
         self.prior = (
             self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(
@@ -236,10 +273,10 @@ class DynamicsModel(TensorDictModuleBase):
         self.normalization_fitted = not normalize  # raw units need no fit
 
     def _net_outputs(self) -> int:
-        """A delta per feature; or a logit per feature and one for zeros, then an offset per feature when there is a prior to cancel."""
+        """A delta per feature; or a row of logits per group (:func:`_group_layout`), then an offset per feature when there is a prior to cancel."""
         if self.output == "delta":
             return self.observation_size
-        return self.observation_size + 1 + (self.observation_size if self.prior_scale > 0 else 0)
+        return self._padding.numel() + (self.observation_size if self.prior_scale > 0 else 0)
 
     def _make_net(
         self, in_features: int, num_cells: list[int], activation_class: type[nn.Module], device, out_features: int
@@ -275,13 +312,32 @@ class DynamicsModel(TensorDictModuleBase):
         output = self.net(inputs)
         if self.prior is None:
             return output, None
-        logits, offset = output.split([self.observation_size + 1, self.observation_size], -1)
+        logits, offset = output.split([self._padding.numel(), self.observation_size], -1)
         return logits, offset + self.prior_scale * self.prior(inputs)
 
-    @staticmethod
-    def categorical_prediction(logits: torch.Tensor, offset: torch.Tensor | None) -> torch.Tensor:
-        """The next observation a categorical model's parts predict: each feature's probability (the class of zeros adds nothing), plus the offset."""
-        probabilities = logits.softmax(-1)[..., :-1]
+    def grouped_logits(self, logits: torch.Tensor) -> torch.Tensor:
+        """A categorical model's logits as ``[*, W, G]``: a column per group, its entries, ``-inf`` padding, and its class of zeros last."""
+        return logits.unflatten(-1, self._padding.shape) + self._padding
+
+    def categorical_log_likelihood(self, logits: torch.Tensor, observation: torch.Tensor) -> torch.Tensor:
+        """The log-probability, ``[*, 1]``, that a categorical model's logits give a (one-hot) ``observation``: its groups' classes' summed.
+
+        A group of zeros (DeepSea's observation after its last row) is its class of zeros.
+        """
+        log_probabilities = _class_softmax(self.grouped_logits(logits), torch.log_softmax).flatten(-2)
+        entries = log_probabilities.index_select(-1, self._entry_index)
+        zeros = 1 - observation.new_zeros((*observation.shape[:-1], len(self.groups))).index_add(
+            -1, self._group_of_entry, observation
+        )
+        zeros_log_probabilities = log_probabilities[
+            ..., -len(self.groups) :
+        ]  # the last row: each group's class of zeros
+        return (observation * entries).sum(-1, keepdim=True) + (zeros * zeros_log_probabilities).sum(-1, keepdim=True)
+
+    def categorical_prediction(self, logits: torch.Tensor, offset: torch.Tensor | None) -> torch.Tensor:
+        """The next observation a categorical model's parts predict: each feature's probability within its group (the classes of zeros add nothing), plus the offset."""
+        probabilities = _class_softmax(self.grouped_logits(logits), torch.softmax)
+        probabilities = probabilities.flatten(-2).index_select(-1, self._entry_index)
         return probabilities if offset is None else probabilities + offset
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
@@ -340,3 +396,32 @@ class DynamicsModel(TensorDictModuleBase):
         # A state_dict saved before the flag existed: keep its statistics as they are (never auto-refit a trained model).
         state_dict.setdefault(prefix + "_extra_state", {"normalization_fitted": True})
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def _class_softmax(grouped: torch.Tensor, function=torch.softmax) -> torch.Tensor:
+    """``torch.softmax`` (or ``torch.log_softmax``) over the classes of ``[*, W, G]`` grouped logits.
+
+    Over the class dimension, before the groups' (CPU's softmax is slow along a short last
+    dimension); one group as one flat row, the order of DeepSea's runs.
+    """
+    if grouped.shape[-1] == 1:
+        return function(grouped.squeeze(-1), -1).unsqueeze(-1)
+    return function(grouped, -2)
+
+
+def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """A categorical model's logits as ``W`` rows (the largest group plus one) of a column per group: what each adds, and where each feature sits.
+
+    Column ``g`` holds group ``g``'s entries, then padding up to row ``W - 1``, then its
+    class of zeros. ``padding`` (``[W, G]``) is ``-inf`` on the padding and ``0`` elsewhere
+    (so a softmax never gives padding any probability); ``entry_index[i]`` is feature
+    ``i``'s place in the flattened ``[W, G]`` logits. One group (DeepSea's cells) is one
+    column, unpadded, in the order of the features.
+    """
+    width = max(groups) + 1
+    padding = torch.zeros(width, len(groups))
+    entry_index = []
+    for column, size in enumerate(groups):
+        padding[size:-1, column] = -torch.inf
+        entry_index.extend(range(column, size * len(groups), len(groups)))
+    return padding, torch.tensor(entry_index, dtype=torch.long)

@@ -136,8 +136,7 @@ class DynamicsLoss(LossModule):
         self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor, num_members: int | None
     ) -> TensorDict:
         logits, offset = self.dynamics.categorical_parts(observation, action)
-        zeros = 1 - next_observation.sum(-1, keepdim=True)  # 1 for an observation of zeros, 0 for a one-hot one
-        loss = -(torch.cat([next_observation, zeros], -1) * logits.log_softmax(-1)).sum(-1, keepdim=True)
+        loss = -self.dynamics.categorical_log_likelihood(logits, next_observation)  # each group's cross-entropy, summed
         if offset is not None:
             loss = loss + offset.square().sum(-1, keepdim=True)
         error = self.dynamics.categorical_prediction(logits, offset).detach() - next_observation

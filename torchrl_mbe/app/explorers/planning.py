@@ -119,7 +119,7 @@ class PlanningExplorer(EGreedyExplorer):
             dynamics = task_of(resolve_env_id(cfg.env.name)).oracle(context.action_spec, **context.env_options)
         else:
             dynamics = DynamicsModel(
-                context.observation_size,
+                context.env.observation_spec,  # its size, and a MultiOneHot's groups
                 context.action_spec,
                 cfg.dynamics.num_cells,
                 num_members=context.num_members,
