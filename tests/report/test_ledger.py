@@ -8,11 +8,12 @@ from pathlib import Path
 
 import pytest
 
-from torchrl_mbe.report.ledger import render_results_table
+from torchrl_mbe.report.ledger import render_results_table, render_seeds_table
 
 REPO = Path(__file__).resolve().parents[2]
 LEDGER = REPO / "docs" / "runs"
 MARKERS = ("<!-- ledger: results table -->", "<!-- /ledger -->")
+SEEDS_MARKERS = ("<!-- ledger: seeds table -->", "<!-- /ledger -->")
 PROCESS_TALK = re.compile(r"worktree|\bsession\b|\bof mine\b|machine time|\bthe issue\b|issue's", re.IGNORECASE)
 
 
@@ -21,6 +22,14 @@ def test_the_readme_results_table_is_the_one_the_ledger_renders():
     start, end = readme.index(MARKERS[0]) + len(MARKERS[0]), readme.index(MARKERS[1])
     assert readme[start:end].strip() == render_results_table(LEDGER), (
         "README.md's results table differs from the ledger; paste `python -m torchrl_mbe.report.ledger docs/runs`"
+    )
+
+
+def test_the_results_pages_seed_by_seed_table_is_the_one_the_ledger_renders():
+    results = (REPO / "docs" / "results.md").read_text()
+    start, end = results.index(SEEDS_MARKERS[0]) + len(SEEDS_MARKERS[0]), results.index(SEEDS_MARKERS[1])
+    assert results[start:end].strip() == render_seeds_table(LEDGER), (
+        "docs/results.md's seed table differs from the ledger; paste `python -m torchrl_mbe.report.ledger docs/runs --seeds`"
     )
 
 

@@ -1,11 +1,12 @@
-"""The ledger: the recorded runs behind the README's results table, and the table rendered from them.
+"""The ledger: the recorded runs behind the README's results table and docs/results.md's seed tables, and the tables rendered from them.
 
 ``docs/runs/`` holds the ``summary.json`` of every run the table cites (each with its
 ``record``: commit, machine, versions, command) and ``ledger.json``, one entry per row: the
 task, its kind of reward, the folder of its runs and the command that trains it. The numbers
 come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, any other
-as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the table;
-a test fails when README.md's copy differs.
+as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
+table and ``... --seeds`` the seed by seed table of docs/results.md ("Your own task"); a test
+fails when a doc's copy differs.
 """
 
 from __future__ import annotations
@@ -16,13 +17,17 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["LEDGER_INDEX", "render_results_table"]
+__all__ = ["LEDGER_INDEX", "render_results_table", "render_seeds_table"]
 
 LEDGER_INDEX = "ledger.json"
 EGREEDY = "dqn+egreedy"
 HEADER = (
     "| task | reward | default explorer solved | e-greedy solved | median frames to solved (default) "
     "| median seconds to solved (default, its seeds at once) | commit | command |"
+)
+SEEDS_HEADER = (
+    "| task | explorer | solved | frames to the first solved evaluation: median [each seed; unsolved: its final "
+    "greedy success rate] | seconds to solved, median (its seeds at once) | commit | command |"
 )
 
 
@@ -50,6 +55,64 @@ def render_results_table(ledger_dir: str | Path) -> str:
     entries = json.loads((ledger_dir / LEDGER_INDEX).read_text())
     rows = [_row(entry, _summaries(ledger_dir / entry["runs"])) for entry in entries]
     return "\n".join([HEADER, "| --- " * HEADER.count(" | ") + "| --- |", *rows])
+
+
+def render_seeds_table(ledger_dir: str | Path) -> str:
+    """docs/results.md's seed by seed table: a row per ``ledger.json`` entry and explorer, each seed's frames to solved.
+
+    An unsolved seed shows its final greedy success rate (or return) in parentheses; the
+    command is the one its runs recorded.
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_seeds_table
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for seed, solved_at in enumerate([1000, 3000, None]):
+        ...     run = ledger / "toy" / f"seed{seed}"
+        ...     run.mkdir(parents=True)
+        ...     summary = {"method": "dqn+gaussian", "seed": seed, "solved": solved_at is not None,
+        ...                "solved_at_frames": solved_at, "solved_at_wall_time_s": solved_at and solved_at / 100,
+        ...                "final_eval_success_rate": 0.25, "record": {"commit": "0123456789abcdef",
+        ...                "command": "python train.py env=toy population=3"}}
+        ...     _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> entry = {"task": "Toy-v0", "reward": "sparse", "runs": "toy", "command": "python train.py env=toy"}
+        >>> _ = (ledger / "ledger.json").write_text(json.dumps([entry]))
+        >>> print(render_seeds_table(ledger).splitlines()[-1])
+        | Toy-v0 | gaussian | 2/3 | 2,000 [1,000, 3,000, (0.25)] | 20 | 0123456 | `python train.py env=toy population=3` |
+    """
+    ledger_dir = Path(ledger_dir)
+    rows = []
+    for entry in json.loads((ledger_dir / LEDGER_INDEX).read_text()):
+        summaries = _summaries(ledger_dir / entry["runs"])
+        for method in sorted({s["method"] for s in summaries}, key=lambda method: method == EGREEDY):
+            rows.append(_seeds_row(entry["task"], sorted((s for s in summaries if s["method"] == method), key=_seed)))
+    return "\n".join([SEEDS_HEADER, "| --- " * SEEDS_HEADER.count(" | ") + "| --- |", *rows])
+
+
+def _seed(summary: dict) -> int:
+    return summary["seed"]
+
+
+def _seeds_row(task: str, summaries: Sequence[dict]) -> str:
+    solved = [s for s in summaries if s["solved"]]
+    each = ", ".join(f"{s['solved_at_frames']:,}" if s["solved"] else f"({_final(s)})" for s in summaries)
+    cells = [
+        task,
+        summaries[0]["method"].removeprefix("dqn+"),
+        _solved(summaries),
+        f"{_median([s['solved_at_frames'] for s in solved])} [{each}]",
+        _median([s["solved_at_wall_time_s"] for s in solved]),
+        ", ".join(sorted({s["record"]["commit"][:7] for s in summaries})),
+        " / ".join(f"`{command}`" for command in sorted({s["record"]["command"] for s in summaries})),
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def _final(summary: dict) -> str:
+    """An unsolved run's final greedy success rate, or its return where the task has no goal."""
+    rate = summary.get("final_eval_success_rate")
+    return f"{rate:.2f}" if rate is not None else f"return {summary['final_eval_return']:.2f}"
 
 
 def _summaries(runs_dir: Path) -> list[dict]:
@@ -85,4 +148,6 @@ def _median(values: Sequence[float]) -> str:
 
 
 if __name__ == "__main__":
-    print(render_results_table(sys.argv[1] if len(sys.argv) > 1 else "docs/runs"))
+    arguments = [argument for argument in sys.argv[1:] if argument != "--seeds"]
+    render = render_seeds_table if "--seeds" in sys.argv else render_results_table
+    print(render(arguments[0] if arguments else "docs/runs"))
