@@ -21,7 +21,7 @@ pytest.importorskip("minigrid")
         ("FrozenLake-v1", "categorical"),  # Discrete: one-hot cells
         ("CliffWalking-v1", "categorical"),
         ("Blackjack-v1", "categorical"),  # Tuple of three Discrete
-        ("MiniGrid-DoorKey-5x5-v0", "categorical"),  # Dict: the cells' codes, the direction, a mission text
+        ("MiniGrid-DoorKey-5x5-v0", "delta"),  # Dict: image codes (a Box), direction, mission text
         ("Acrobot-v1", "delta"),  # Box
     ],
 )

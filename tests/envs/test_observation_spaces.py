@@ -12,8 +12,7 @@ from torchrl.envs import DoubleToFloat, GymEnv, TransformedEnv
 from torchrl.envs.utils import RandomPolicy
 
 from torchrl_mbe import make_env
-from torchrl_mbe.envs.make import dqn_transforms
-from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE, make_gymnasium, wrap_gymnasium
+from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE
 from torchrl_mbe.modules.dynamics import categorical_groups
 
 THREE_ACTIONS = spaces.Discrete(3)
@@ -70,10 +69,7 @@ for env_id, (observation_space, action_space, _) in REFUSED.items():
         ("FrozenLake-v1", 16),  # Discrete: one-hot
         ("Taxi-v4", 500),
         ("Blackjack-v1", 32 + 11 + 2),  # Tuple of three Discrete
-        (
-            "MiniGrid-DoorKey-5x5-v0",
-            4 + 7 * 7 * (11 + 6 + 3),
-        ),  # Dict: the direction and the 7x7 cells' codes, one-hot; the mission dropped
+        ("MiniGrid-DoorKey-5x5-v0", 7 * 7 * 3 + 4),  # Dict: the 7x7x3 codes and the direction; the mission text dropped
         *((env_id, size) for env_id, (_, size) in SPACES.items()),
     ],
 )
@@ -96,7 +92,6 @@ def test_every_observation_space_is_one_float_vector_the_same_in_one_env_and_in_
         ("Blackjack-v1", [32, 11, 2]),
         ("test/MultiDiscrete-v0", [3, 4]),
         ("test/MultiBinary-v0", [2] * 5),
-        ("MiniGrid-DoorKey-5x5-v0", [4] + [11, 6, 3] * 49),  # direction, then each cell's object, colour and state
     ],
 )
 def test_an_observation_of_categorical_variables_is_one_hot_per_variable_so_a_model_knows_which_entries_belong_together(
@@ -108,18 +103,6 @@ def test_an_observation_of_categorical_variables_is_one_hot_per_variable_so_a_mo
     observations = env.rollout(30, RandomPolicy(env.action_spec))["observation"]
     assert all(  # exactly one entry of each variable is on, in every observation
         (part.sum(-1) == 1).all() for part in observations.split(groups, -1)
-    )
-
-
-def test_minigrids_one_hot_codes_are_the_cells_codes_it_returns():
-    minigrid = make_gymnasium("MiniGrid-DoorKey-5x5-v0")
-    env = TransformedEnv(wrap_gymnasium(minigrid), dqn_transforms(torch.long))
-    last = env.rollout(20, RandomPolicy(env.action_spec))[-1]
-    observation = minigrid.unwrapped.gen_obs()  # after the last step
-    parts = last["next", "observation"].split([4] + [11, 6, 3] * 49, -1)
-    assert parts[0].argmax() == observation["direction"]
-    assert torch.equal(
-        torch.stack([part.argmax() for part in parts[1:]]), torch.from_numpy(observation["image"]).flatten()
     )
 
 

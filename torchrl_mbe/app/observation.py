@@ -2,8 +2,7 @@
 
 A one-hot observation (a TorchRL ``OneHot`` spec: DeepSea's cells, gymnasium's
 ``Discrete`` states such as FrozenLake's, Taxi's, CliffWalking's; or a ``MultiOneHot``
-one of several categorical variables: MiniGrid's object, colour and state codes,
-Blackjack's three numbers) gets what ``experiment=deepsea_categorical`` chose on
+one of several categorical variables: Blackjack's three numbers, a ``MultiDiscrete``) gets what ``experiment=deepsea_categorical`` chose on
 DeepSea (docs/results.md, section 6): the categorical dynamics model (a softmax over
 each variable's values, a randomized prior and the offset that cancels it where the
 model has data) and the diagonal Gaussian of every visited state, which on one-hot

@@ -92,8 +92,8 @@ def make_env(
         torch.Size([2, 3, 5])
         >>> make_env("FrozenLake8x8-v1", is_slippery=False).observation_spec["observation"].shape  # one-hot cells, as floats
         torch.Size([64])
-        >>> make_env("MiniGrid-DoorKey-5x5-v0", num_envs=2).observation_spec["observation"].shape  # 4 directions, 7x7 cells of 11 objects, 6 colours, 3 states
-        torch.Size([2, 984])
+        >>> make_env("MiniGrid-DoorKey-5x5-v0", num_envs=2).observation_spec["observation"].shape  # 7x7x3 codes and 4 directions
+        torch.Size([2, 151])
         >>> make_env("Pendulum-v1")
         Traceback (most recent call last):
         ...

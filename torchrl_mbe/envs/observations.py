@@ -2,12 +2,12 @@
 
 TorchRL's ``GymWrapper`` reads a ``Box`` and a ``Discrete`` observation (one-hot) itself.
 An observation made only of categorical variables (``MultiDiscrete``, ``MultiBinary``,
-``Tuple`` or ``Dict`` of these with ``Discrete``; MiniGrid's 7x7x3 object, colour and
-state codes and its direction) becomes one ``MultiDiscrete``, which
-:func:`wrap_gymnasium` reads as a ``MultiOneHot`` spec: one one-hot group per
-variable, which tells a model which entries belong together
-(:func:`~torchrl_mbe.modules.dynamics.categorical_groups`).
-Any other space (a ``Tuple`` or ``Dict`` holding a ``Box``, a ``Box`` of integers) is
+``Tuple`` or ``Dict`` of these with ``Discrete``: Blackjack's three numbers) becomes one
+``MultiDiscrete``, which :func:`wrap_gymnasium` reads as a ``MultiOneHot`` spec: one
+one-hot group per variable, which tells a model which entries belong together
+(:func:`~torchrl_mbe.modules.dynamics.categorical_groups`). Any other space (a
+``Tuple`` or ``Dict`` holding a ``Box``, a ``Box`` of integers such as MiniGrid's 7x7x3
+object, colour and state codes, kept as the codes: docs/results.md, section 7) is
 flattened by gymnasium's own ``FlattenObservation`` into float32, which TorchRL 0.14's
 ``GymWrapper`` cannot do for a ``Tuple`` of unequal ``Discrete`` spaces (Blackjack)
 nor for MiniGrid's ``MissionSpace``. Entries that cannot be flattened (a mission
@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import importlib
 import logging
-import sys
 from typing import Any
 
 import gymnasium as gym
@@ -150,7 +149,6 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
         raise ValueError(
             f"{env_id} has a {env.action_space} action space; model-based exploration plans over one discrete action set (a Discrete action space)."
         )
-    env = _minigrid_codes(env)
     space = env.observation_space
     if isinstance(space, spaces.Dict):
         kept = [key for key, entry in space.spaces.items() if _flattenable(entry)]
@@ -180,22 +178,6 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
             env, lambda observation: _category_indices(space, observation), _multi_discrete(space)
         )
     return DtypeObservation(FlattenObservation(env), np.float32)
-
-
-def _minigrid_codes(env: gym.Env) -> gym.Env:
-    """MiniGrid's ``image`` (a ``Box`` of 0-255 bytes) declared as what it holds: an object, a colour and a state code per cell."""
-    if "minigrid" not in sys.modules:  # never imported: no MiniGrid task
-        return env
-    from minigrid.core.constants import COLOR_TO_IDX, OBJECT_TO_IDX, STATE_TO_IDX
-    from minigrid.minigrid_env import MiniGridEnv
-
-    if not isinstance(env.unwrapped, MiniGridEnv):
-        return env
-
-    image = env.observation_space["image"]
-    codes = np.broadcast_to([len(OBJECT_TO_IDX), len(COLOR_TO_IDX), len(STATE_TO_IDX)], image.shape)
-    space = spaces.Dict({**env.observation_space.spaces, "image": spaces.MultiDiscrete(codes)})
-    return TransformObservation(env, lambda observation: observation, space)
 
 
 def _categorical(space: spaces.Space) -> bool:

@@ -42,8 +42,8 @@ def categorical_groups(observation: int | TensorSpec, observation_key: NestedKey
     """The sizes of the one-hot groups a flat observation is made of: a ``MultiOneHot`` spec's ``nvec``, else one group of every entry.
 
     A ``OneHot`` observation (DeepSea's cells, a gymnasium ``Discrete``) is one group; a
-    ``MultiOneHot`` one (a ``MultiDiscrete``, ``Tuple`` of ``Discrete`` or MiniGrid's
-    object, colour and state codes) one group per variable.
+    ``MultiOneHot`` one (a ``MultiDiscrete``, a ``Tuple`` of ``Discrete``) one group per
+    variable.
 
     Examples:
         >>> from torchrl.data import MultiOneHot, OneHot
@@ -177,7 +177,7 @@ class DynamicsModel(TensorDictModuleBase):
             entries and one class more for an observation of zeros (DeepSea's after its
             last row), trained by :class:`~torchrl_mbe.DynamicsLoss` with cross-entropy;
             an observation of several one-hot groups (a ``MultiOneHot`` spec, such as
-            MiniGrid's codes: :func:`categorical_groups`) gets one softmax per group.
+            a ``MultiDiscrete``'s: :func:`categorical_groups`) gets one softmax per group.
             A delta's predictions lie in an affine span of ``num_cells[-1] + 1``
             directions, fewer than the distinct next cells a large grid needs; a
             softmax's peak can sit on any entry (docs/results.md, section 6). With a
