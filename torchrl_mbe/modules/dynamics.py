@@ -253,11 +253,9 @@ class DynamicsModel(TensorDictModuleBase):
         in_features = observation_size + num_discrete_actions(self.action_spec)
         self.output = output
         self.prior_scale = prior_scale
-        padding, entry_index = _group_layout(groups)
-        self.register_buffer("_padding", padding.to(device), persistent=False)
-        self.register_buffer("_entry_index", entry_index.to(device), persistent=False)
-        group_of_entry = torch.repeat_interleave(torch.arange(len(groups)), torch.tensor(groups))
-        self.register_buffer("_group_of_entry", group_of_entry.to(device), persistent=False)
+        for name, layout in zip(("_padding", "_entry_index", "_group_of_entry"), _group_layout(groups)):
+            # a categorical model's layout of its logits; a delta model has none
+            self.register_buffer(name, layout.to(device) if output == "categorical" else None, persistent=False)
         self.net = self._make_net(in_features, list(num_cells), activation_class, device, self._net_outputs())
         self.prior = (
             self._make_net(in_features, prior_num_cells, activation_class, device, observation_size).requires_grad_(
@@ -409,14 +407,14 @@ def _class_softmax(grouped: torch.Tensor, function=torch.softmax) -> torch.Tenso
     return function(grouped, -2)
 
 
-def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """A categorical model's logits as ``W`` rows (the largest group plus one) of a column per group: what each adds, and where each feature sits.
+def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A categorical model's logits as ``W`` rows (the largest group plus one) of a column per group: what each adds, where each feature sits, and its group.
 
     Column ``g`` holds group ``g``'s entries, then padding up to row ``W - 1``, then its
     class of zeros. ``padding`` (``[W, G]``) is ``-inf`` on the padding and ``0`` elsewhere
     (so a softmax never gives padding any probability); ``entry_index[i]`` is feature
-    ``i``'s place in the flattened ``[W, G]`` logits. One group (DeepSea's cells) is one
-    column, unpadded, in the order of the features.
+    ``i``'s place in the flattened ``[W, G]`` logits, ``group_of_entry[i]`` its group. One
+    group (DeepSea's cells) is one column, unpadded, in the order of the features.
     """
     width = max(groups) + 1
     padding = torch.zeros(width, len(groups))
@@ -424,4 +422,5 @@ def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
     for column, size in enumerate(groups):
         padding[size:-1, column] = -torch.inf
         entry_index.extend(range(column, size * len(groups), len(groups)))
-    return padding, torch.tensor(entry_index, dtype=torch.long)
+    group_of_entry = torch.repeat_interleave(torch.arange(len(groups)), torch.tensor(groups))
+    return padding, torch.tensor(entry_index, dtype=torch.long), group_of_entry
