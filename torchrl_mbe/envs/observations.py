@@ -183,8 +183,7 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
 def _categorical(space: spaces.Space) -> bool:
     """Whether ``space`` holds only categorical variables (``Discrete``, ``MultiDiscrete``, ``MultiBinary``, and ``Tuple`` or ``Dict`` of these)."""
     if isinstance(space, (spaces.Tuple, spaces.Dict)):
-        entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
-        return all(map(_categorical, entries))
+        return all(map(_categorical, _entries(space)))
     return isinstance(space, (spaces.Discrete, spaces.MultiDiscrete, spaces.MultiBinary))
 
 
@@ -200,8 +199,7 @@ def _category_counts(space: spaces.Space) -> list[np.ndarray]:
         return [np.asarray(space.nvec).ravel()]
     if isinstance(space, spaces.MultiBinary):
         return [np.full(int(np.prod(space.shape)), 2)]
-    entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
-    return [counts for entry in entries for counts in _category_counts(entry)]
+    return [counts for entry in _entries(space) for counts in _category_counts(entry)]
 
 
 def _category_indices(space: spaces.Space, observation: Any) -> np.ndarray:
@@ -222,9 +220,13 @@ def _flattenable(space: spaces.Space) -> bool:
     if isinstance(space, spaces.Text):
         return False
     if isinstance(space, (spaces.Tuple, spaces.Dict)):
-        entries = space.spaces.values() if isinstance(space, spaces.Dict) else space.spaces
-        return all(map(_flattenable, entries))
+        return all(map(_flattenable, _entries(space)))
     try:
         return bool(space.is_np_flattenable)
     except NotImplementedError:  # MiniGrid's MissionSpace
         return False
+
+
+def _entries(space: spaces.Tuple | spaces.Dict) -> list[spaces.Space]:
+    """A ``Tuple``'s or ``Dict``'s spaces, in order (a ``Dict``'s in its keys' order)."""
+    return list(space.spaces.values()) if isinstance(space, spaces.Dict) else list(space.spaces)

@@ -327,9 +327,7 @@ class DynamicsModel(TensorDictModuleBase):
         zeros = 1 - observation.new_zeros((*observation.shape[:-1], len(self.groups))).index_add(
             -1, self._group_of_entry, observation
         )
-        zeros_log_probabilities = log_probabilities[
-            ..., -len(self.groups) :
-        ]  # the last row: each group's class of zeros
+        zeros_log_probabilities = log_probabilities[..., -len(self.groups) :]  # the last row: the classes of zeros
         return (observation * entries).sum(-1, keepdim=True) + (zeros * zeros_log_probabilities).sum(-1, keepdim=True)
 
     def categorical_prediction(self, logits: torch.Tensor, offset: torch.Tensor | None) -> torch.Tensor:

@@ -5,7 +5,7 @@
 task, its kind of reward, the folder of its runs and the command that trains it. The numbers
 come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, any other
 as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
-table and ``... --seeds`` the seed by seed table of docs/results.md ("Your own task"); a test
+table and ``... --seeds`` the seed by seed table at the top of docs/results.md; a test
 fails when a doc's copy differs.
 """
 
@@ -54,7 +54,7 @@ def render_results_table(ledger_dir: str | Path) -> str:
     ledger_dir = Path(ledger_dir)
     entries = json.loads((ledger_dir / LEDGER_INDEX).read_text())
     rows = [_row(entry, _summaries(ledger_dir / entry["runs"])) for entry in entries]
-    return "\n".join([HEADER, "| --- " * HEADER.count(" | ") + "| --- |", *rows])
+    return _table(HEADER, rows)
 
 
 def render_seeds_table(ledger_dir: str | Path) -> str:
@@ -87,7 +87,7 @@ def render_seeds_table(ledger_dir: str | Path) -> str:
         summaries = _summaries(ledger_dir / entry["runs"])
         for method in sorted({s["method"] for s in summaries}, key=lambda method: method == EGREEDY):
             rows.append(_seeds_row(entry["task"], sorted((s for s in summaries if s["method"] == method), key=_seed)))
-    return "\n".join([SEEDS_HEADER, "| --- " * SEEDS_HEADER.count(" | ") + "| --- |", *rows])
+    return _table(SEEDS_HEADER, rows)
 
 
 def _seed(summary: dict) -> int:
@@ -103,7 +103,7 @@ def _seeds_row(task: str, summaries: Sequence[dict]) -> str:
         _solved(summaries),
         f"{_median([s['solved_at_frames'] for s in solved])} [{each}]",
         _median([s["solved_at_wall_time_s"] for s in solved]),
-        ", ".join(sorted({s["record"]["commit"][:7] for s in summaries})),
+        _commits(summaries),
         " / ".join(f"`{command}`" for command in sorted({s["record"]["command"] for s in summaries})),
     ]
     return "| " + " | ".join(cells) + " |"
@@ -123,7 +123,6 @@ def _row(entry: dict, summaries: Sequence[dict]) -> str:
     default = [s for s in summaries if s["method"] != EGREEDY]
     egreedy = [s for s in summaries if s["method"] == EGREEDY]
     solved = [s for s in default if s["solved"]]
-    commits = sorted({s["record"]["commit"][:7] for s in summaries})
     cells = [
         entry["task"],
         entry["reward"],
@@ -131,10 +130,19 @@ def _row(entry: dict, summaries: Sequence[dict]) -> str:
         _solved(egreedy),
         _median([s["solved_at_frames"] for s in solved]),
         _median([s["solved_at_wall_time_s"] for s in solved]),
-        ", ".join(commits),
+        _commits(summaries),
         f"`{entry['command']}`",
     ]
     return "| " + " | ".join(cells) + " |"
+
+
+def _table(header: str, rows: Sequence[str]) -> str:
+    return "\n".join([header, "| --- " * header.count(" | ") + "| --- |", *rows])
+
+
+def _commits(summaries: Sequence[dict]) -> str:
+    """The short commits the runs recorded, sorted."""
+    return ", ".join(sorted({s["record"]["commit"][:7] for s in summaries}))
 
 
 def _solved(summaries: Sequence[dict]) -> str:
