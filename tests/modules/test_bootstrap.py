@@ -18,6 +18,7 @@ from torchrl.objectives import DQNLoss
 from torchrl_mbe import make_env
 from torchrl_mbe.envs.transforms import BootstrapHeads
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
+from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
 
 SPEC = OneHot(3)
@@ -131,6 +132,57 @@ def test_the_actor_acts_with_its_head_while_exploring_and_with_the_heads_mean_wh
     torch.testing.assert_close(exploring["action_value"], heads[torch.arange(5), head])
     torch.testing.assert_close(greedy["action_value"], heads.mean(-2))
     assert torch.equal(greedy["action"].argmax(-1), heads.mean(-2).argmax(-1))
+
+
+def population_of_ensembles(num_members: int, num_heads: int) -> BootstrappedQValueActor:
+    torch.manual_seed(0)
+    norm = Standardize((num_members, OBSERVATION_SIZE))
+    norm.fit(torch.randn(100, num_members, OBSERVATION_SIZE) * torch.arange(1.0, num_members + 1).unsqueeze(-1))
+    network = EnsembleQNetwork(OBSERVATION_SIZE, 3, [16], num_heads, 5.0, input_norm=norm, num_members=num_members)
+    return BootstrappedQValueActor(network, SPEC)
+
+
+def member_as_single_ensemble(population: BootstrappedQValueActor, member: int) -> BootstrappedQValueActor:
+    network = EnsembleQNetwork(OBSERVATION_SIZE, 3, [16], population.network.num_heads, 5.0, input_norm=Standardize(2))
+    single = BootstrappedQValueActor(network, SPEC)
+    single.load_state_dict(population.member_state_dict(member))  # strict: exactly one ensemble's keys
+    return single
+
+
+def test_a_population_members_ensemble_acts_and_learns_as_the_single_ensemble_its_weights_make():
+    population = population_of_ensembles(num_members=3, num_heads=4)
+    single = member_as_single_ensemble(population, member=1)
+    members_batch = torch.stack([transitions(32, 4, seed=seed) for seed in range(3)], dim=1)  # [32, M]
+    head = torch.randint(4, (32, 3))
+    with set_exploration_type(ExplorationType.RANDOM):
+        acting = population(members_batch.select("observation").set("head", head))
+        alone = single(members_batch[:, 1].select("observation").set("head", head[:, 1]))
+    torch.testing.assert_close(acting["action_value"][:, 1], alone["action_value"])
+    population_losses = [BootstrapDQNLoss(population, **LOSS_OPTIONS), BootstrapDQNLoss(single, **LOSS_OPTIONS)]
+    for loss in population_losses:
+        loss.make_value_estimator(gamma=0.99)
+    member_loss = population_losses[0](members_batch.clone())["member_loss"]
+    single_loss = population_losses[1](members_batch[:, 1].clone())["member_loss"]
+    assert member_loss.shape == (12,)  # M * K heads
+    torch.testing.assert_close(member_loss[4:8], single_loss)
+    member_loss.sum().backward()
+    single_loss.sum().backward()
+    for key, value in single.network.trainable.params.items(include_nested=True, leaves_only=True):
+        torch.testing.assert_close(population.network.trainable.params[key].grad[4:8], value.grad)
+
+
+def test_a_population_member_acts_with_its_own_heads_and_is_greedy_by_their_mean():
+    population = population_of_ensembles(num_members=2, num_heads=3)
+    observation = torch.randn(5, 2, OBSERVATION_SIZE)
+    heads = population.network(observation.unsqueeze(-2).expand(5, 2, 3, OBSERVATION_SIZE))  # [5, M, K, A]
+    head = torch.randint(3, (5, 2))
+    with set_exploration_type(ExplorationType.RANDOM):
+        exploring = population(TensorDict(observation=observation, head=head, batch_size=[5, 2]))
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        greedy = population(TensorDict(observation=observation, head=head, batch_size=[5, 2]))
+    chosen = heads.gather(-2, head[..., None, None].expand(5, 2, 1, 3)).squeeze(-2)
+    torch.testing.assert_close(exploring["action_value"], chosen)
+    torch.testing.assert_close(greedy["action_value"], heads.mean(-2))
 
 
 @pytest.mark.parametrize("num_heads, mask_prob", [(0, 0.5), (3, 1.5), (3, -0.1)])

@@ -332,10 +332,6 @@ def _check_population(config: Config) -> None:
         raise ConfigError(
             f"{refusal}: exploration.model_error_threshold switches one warm-up for all members; leave it null or use population=1."
         )
-    if config.exploration.name == "bootstrap":
-        raise ConfigError(
-            f"{refusal}: exploration=bootstrap trains one ensemble per run; run its seeds as single runs (population=1)."
-        )
 
 
 def _check_device(device: str) -> None:

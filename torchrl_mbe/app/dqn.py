@@ -24,7 +24,7 @@ from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.environments import env_options, make_run_env
-from torchrl_mbe.app.explorers import Explorer, ExplorerContext, explorer_of
+from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QEnsemble, explorer_of
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.population import StopOnInterrupt, open_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
@@ -247,7 +247,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     q_input_norm = Standardize(
         observation_size if num_members is None else (num_members, observation_size), device=device
     )
-    ensemble = explorer_class.q_ensemble(cfg.exploration)  # a Bootstrapped DQN's (heads, prior scale), else None
+    ensemble = explorer_class.q_ensemble(cfg.exploration)  # a Bootstrapped DQN's heads, else None
     actor = make_q_actor(
         observation_size,
         action_spec,
@@ -269,8 +269,8 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         adam(q_loss.parameters(), algo.lr),
         algo.max_grad_norm,
         compile=cfg.compile,
-        num_members=num_members if ensemble is None else ensemble[0],  # an ensemble's heads clip on their own
-        report_mean=ensemble is not None,
+        num_members=num_members if ensemble is None else ensemble.num_heads * (num_members or 1),  # heads clip alone
+        heads_per_member=None if ensemble is None else ensemble.num_heads,
     )
     return DQNAgent(
         actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg)
@@ -291,25 +291,25 @@ def make_q_actor(
     input_norm: Standardize | None = None,
     noise_std: float | None = None,
     num_members: int | None = None,
-    ensemble: tuple[int, float] | None = None,
+    ensemble: QEnsemble | None = None,
 ) -> QValueActor | BootstrappedQValueActor:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
 
     With ``input_norm`` the MLP reads observations standardized by it; with
     ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
     with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`);
-    with ``ensemble=(heads, prior_scale)`` it is a Bootstrapped DQN's
-    (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`).
+    with ``ensemble`` it is a Bootstrapped DQN's (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`,
+    of ``ensemble.num_cells`` in place of ``num_cells``; one ensemble per member with ``num_members``).
     """
     if ensemble is not None:
-        num_heads, prior_scale = ensemble
         network = EnsembleQNetwork(
             observation_size,
             action_spec.space.n,
-            num_cells,
-            num_heads,
-            prior_scale,
+            ensemble.num_cells,
+            ensemble.num_heads,
+            ensemble.prior_scale,
             input_norm=input_norm,
+            num_members=num_members,
             device=device,
         )
         return BootstrappedQValueActor(network, action_spec)

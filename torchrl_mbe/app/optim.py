@@ -74,8 +74,9 @@ class GradientStep:
     A population's step (``num_members``) takes ``loss(batch) -> [M]``, one loss per
     member, back-propagates their sum and clips each member's gradient on its own
     (:func:`clip_grad_norm_per_member_`): members
-    never share a norm, and Adam's update is elementwise. An ensemble's heads (one
-    agent's) are members too; ``report_mean`` then returns their mean loss.
+    never share a norm, and Adam's update is elementwise. An ensemble's heads are
+    members too (``M * K`` of them for a population of ensembles): with
+    ``heads_per_member`` the step reports each agent's mean over its ``K`` heads.
 
     Args:
         loss (callable): ``loss(batch) -> scalar tensor`` (``[M]`` with ``num_members``).
@@ -85,7 +86,8 @@ class GradientStep:
     Keyword Args:
         compile (bool): compile the loss and backward. Defaults to ``False``.
         num_members (int, optional): the population size, whose parameters are stacked ``[M, ...]``.
-        report_mean (bool): return the members' mean loss, not each member's. Defaults to ``False``.
+        heads_per_member (int, optional): report the mean loss of each run of this many consecutive
+            members (an ensemble's ``K`` heads): one value for one ensemble, ``M`` for a population's.
     """
 
     def __init__(
@@ -96,10 +98,10 @@ class GradientStep:
         *,
         compile: bool = False,
         num_members: int | None = None,
-        report_mean: bool = False,
+        heads_per_member: int | None = None,
     ) -> None:
         self.loss = loss
-        self.report_mean = report_mean
+        self.heads_per_member = heads_per_member
         self.optimizer = optimizer
         self.max_grad_norm = max_grad_norm
         self.num_members = num_members
@@ -108,14 +110,16 @@ class GradientStep:
         )
 
     def __call__(self, batch: TensorDictBase) -> float | list[float]:
-        """Takes the step on ``batch`` and returns the loss before it (each member's, with ``num_members``, or their mean)."""
+        """Takes the step on ``batch`` and returns the loss before it (each member's with ``num_members``, each ensemble's mean)."""
         self.optimizer.zero_grad(set_to_none=True)
         loss = self._compiled_or_eager(batch)
         if self.max_grad_norm is not None:
             for group in self.optimizer.param_groups:
                 self._clip(group["params"])
         self.optimizer.step()
-        return loss.mean().item() if self.report_mean else loss.tolist()
+        if self.heads_per_member is not None:
+            loss = loss.unflatten(0, (-1, self.heads_per_member)).mean(-1).squeeze(0)  # one ensemble's: a scalar
+        return loss.tolist()
 
     def _clip(self, parameters: list[torch.Tensor]) -> None:
         if self.num_members is None:

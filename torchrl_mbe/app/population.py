@@ -61,6 +61,7 @@ from torchrl_mbe.app.run import (
     summary_line,
 )
 from torchrl_mbe.envs import resolve_env_id
+from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor
 from torchrl_mbe.modules.networks import member_state_dict
 from torchrl_mbe.rundir import CHECKPOINT, SUMMARY
 
@@ -400,6 +401,8 @@ def _actor_state(agent: Agent, member: int, size: int) -> Callable[[], dict]:
     """The member's greedy actor weights, keyed as a single actor's (so ``best_policy.pt`` loads into one)."""
     if size == 1:
         return agent.actor.state_dict
+    if isinstance(agent.actor, BootstrappedQValueActor):  # its M * K heads stacked: the member's K
+        return lambda: agent.actor.member_state_dict(member)
     return lambda: member_state_dict(agent.actor.state_dict(), member)
 
 

@@ -34,6 +34,11 @@ class EnsembleQNetwork(nn.Module):
     ``num_cells``, Glorot-uniform weights), ``p`` frozen at its initialization (no
     gradient, never in an optimizer's steps).
 
+    A population of ``M`` ensembles (``num_members``) maps ``[*B, M, K, F]`` to
+    ``[*B, M, K, A]``: its ``M * K`` heads are stacked as one ``MultiAgentMLP``
+    (member ``m``'s heads are ``m * K`` to ``m * K + K - 1``), and ``input_norm`` is
+    the members' ``(M, F)`` statistics.
+
     Args:
         observation_size (int): features ``F``.
         num_actions (int): discrete actions ``A``.
@@ -43,7 +48,8 @@ class EnsembleQNetwork(nn.Module):
 
     Keyword Args:
         input_norm (nn.Module, optional): applied to the observations first
-            (a :class:`~torchrl_mbe.modules.Standardize` of shape ``(F,)``).
+            (a :class:`~torchrl_mbe.modules.Standardize` of shape ``(F,)``, ``(M, F)`` with ``num_members``).
+        num_members (int, optional): a population's ``M`` ensembles, each its own ``K`` heads.
         device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
 
     Examples:
@@ -54,6 +60,9 @@ class EnsembleQNetwork(nn.Module):
         torch.Size([8, 5, 3])
         >>> sum(p.numel() for p in network.parameters() if p.requires_grad) == sum(p.numel() for p in network.prior.parameters())
         True
+        >>> population = EnsembleQNetwork(2, 3, [16], num_heads=5, prior_scale=3.0, num_members=4)
+        >>> population(torch.zeros(8, 4, 5, 2)).shape, population.trainable.params["0", "weight"].shape
+        (torch.Size([8, 4, 5, 3]), torch.Size([20, 16, 2]))
     """
 
     def __init__(
@@ -65,22 +74,41 @@ class EnsembleQNetwork(nn.Module):
         prior_scale: float,
         *,
         input_norm: nn.Module | None = None,
+        num_members: int | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
         super().__init__()
-        self.num_heads, self.prior_scale = num_heads, prior_scale
+        self.num_heads, self.prior_scale, self.num_members = num_heads, prior_scale, num_members
         self.input_norm = input_norm if input_norm is not None else nn.Identity()
-        self.trainable = make_members_mlp(observation_size, num_actions, num_cells, num_heads, device=device)
-        self.prior = make_members_mlp(observation_size, num_actions, num_cells, num_heads, device=device)
+        stacked = num_heads * (num_members or 1)
+        self.trainable = make_members_mlp(observation_size, num_actions, num_cells, stacked, device=device)
+        self.prior = make_members_mlp(observation_size, num_actions, num_cells, stacked, device=device)
         self.prior.requires_grad_(False)
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        observation = self.input_norm(observation)
-        return self.trainable(observation) + self.prior_scale * self.prior(observation)
+        if self.num_members is None:
+            observation = self.input_norm(observation)
+            return self.trainable(observation) + self.prior_scale * self.prior(observation)
+        # each member's statistics (M, F) read [*B, K, M, F]; the M * K heads read [*B, M * K, F]
+        observation = self.input_norm(observation.transpose(-3, -2)).transpose(-3, -2).flatten(-3, -2)
+        values = self.trainable(observation) + self.prior_scale * self.prior(observation)
+        return values.unflatten(-2, (self.num_members, self.num_heads))
+
+    def member_state_dict(self, member: int) -> dict[str, torch.Tensor]:
+        """Member ``member``'s ensemble of a population's (``num_members``), keyed as one ensemble's ``state_dict``.
+
+        Its ``K`` heads and priors are the ``[m * K, m * K + K)`` slice of the stacked
+        parameters, its input statistics the ``[m]`` slice of the members' ``(M, F)``.
+        """
+        heads = slice(member * self.num_heads, (member + 1) * self.num_heads)
+        state = {f"input_norm.{key}": value[member] for key, value in self.input_norm.state_dict().items()}
+        for name in ("trainable", "prior"):
+            state |= {f"{name}.{key}": value[heads] for key, value in getattr(self, name).state_dict().items()}
+        return {key: value.clone() for key, value in state.items() if not value.is_meta}
 
 
 class _AllHeads(nn.Module):
-    """One observation ``[*B, F]`` given to every head: ``[*B, K, A]``."""
+    """One observation ``[*B, F]`` given to every head: ``[*B, K, A]`` (a population's ``[*B, M, F]``: ``[*B, M, K, A]``)."""
 
     def __init__(self, network: EnsembleQNetwork) -> None:
         super().__init__()
@@ -138,7 +166,9 @@ class BootstrappedQValueActor(TensorDictSequential):
     ``"action_value_heads"`` ``[*B, K, A]``, ``"action_value"``, ``"action"`` and
     ``"chosen_action_value"`` as TorchRL's ``QValueActor`` does, and declares its
     ``spec`` as one does. :attr:`network` is what the loss trains; the weights are
-    held once, so ``state_dict`` has each of them once.
+    held once, so ``state_dict`` has each of them once. A population's ensembles
+    (``EnsembleQNetwork(..., num_members=M)``) read ``[*B, M]`` batches, each env's head
+    one of its member's ``K``.
 
     Args:
         network (EnsembleQNetwork): the heads.
@@ -167,3 +197,8 @@ class BootstrappedQValueActor(TensorDictSequential):
     def network(self) -> EnsembleQNetwork:
         """The heads (held by the first module, which gives every head the observation)."""
         return self.module[0].module.network
+
+    def member_state_dict(self, member: int) -> dict[str, torch.Tensor]:
+        """A population's member ``member``: its ensemble, keyed as one ensemble's actor (``best_policy.pt`` loads into one)."""
+        prefix = next(name for name, module in self.named_modules() if module is self.network)
+        return {f"{prefix}.{key}": value for key, value in self.network.member_state_dict(member).items()}

@@ -21,6 +21,8 @@ class BootstrapDQNLoss(PopulationDQNLoss):
     whose gradients touch their own head only (clip them per head with
     :func:`~torchrl_mbe.app.optim.clip_grad_norm_per_member_`). ``"td_error"`` is written
     into the input batch as the mean over heads, ``[*B, 1]`` (for prioritized replay).
+    A population's ensembles (``M`` of them) read a ``[*B, M]`` batch as ``[*B, M, K]``;
+    ``"member_loss"`` is then ``[M * K]``, member ``m``'s heads at ``m * K`` on.
 
     With ``K = 1``, a mask of ones and ``prior_scale = 0`` it takes the steps
     ``DQNLoss`` takes on the same network.
@@ -56,8 +58,12 @@ class BootstrapDQNLoss(PopulationDQNLoss):
     def __init__(
         self, actor: BootstrappedQValueActor, *, mask_key: NestedKey = ("next", "bootstrap_mask"), **kwargs
     ) -> None:
+        member_dims = 1 if actor.network.num_members is None else 2  # [K] or [M, K]
         super().__init__(
-            QValueActor(actor.network, spec=actor.spec, in_keys=["observation"]), mask_key=mask_key, **kwargs
+            QValueActor(actor.network, spec=actor.spec, in_keys=["observation"]),
+            mask_key=mask_key,
+            member_dims=member_dims,
+            **kwargs,
         )
         self.num_heads = actor.network.num_heads
 

@@ -37,6 +37,8 @@ class PopulationDQNLoss(DQNLoss):
         mask_key (NestedKey, optional): a ``[*B, M]`` entry of the batch that weighs each
             sample's loss (a bootstrap mask: 0 leaves the sample out of that member's
             mean, which stays over all ``B``, as bsuite's ``boot_dqn`` takes it).
+        member_dims (int): how many of the batch's last dimensions index members. Defaults to ``1``;
+            ``2`` for a population of ensembles (``[*B, M, K]``: its ``M * K`` heads are the members).
         **kwargs: ``DQNLoss``'s keyword arguments (``delay_value``, ``double_dqn``,
             ``loss_function``, ``action_space``, ...), except ``reduction``.
 
@@ -68,16 +70,19 @@ class PopulationDQNLoss(DQNLoss):
 
     out_keys: ClassVar[list[str]] = ["loss", "member_loss"]
 
-    def __init__(self, value_network: QValueActor, *, mask_key: NestedKey | None = None, **kwargs) -> None:
+    def __init__(
+        self, value_network: QValueActor, *, mask_key: NestedKey | None = None, member_dims: int = 1, **kwargs
+    ) -> None:
         if kwargs.pop("reduction", "none") != "none":
             raise ValueError("PopulationDQNLoss reduces per member itself; do not pass reduction.")
         super().__init__(value_network, reduction="none", **kwargs)
-        self.mask_key = mask_key
+        self.mask_key, self.member_dims = mask_key, member_dims
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         per_sample = super().forward(tensordict)["loss"]  # [*B, M]
         if self.mask_key is not None:
             per_sample = per_sample * tensordict.get(self.mask_key).to(per_sample.dtype)  # a bool mask too
+        per_sample = per_sample.flatten(per_sample.ndim - self.member_dims)  # one member dimension
         member_loss = per_sample.reshape(-1, per_sample.shape[-1]).mean(0)
         return TensorDict(loss=member_loss.sum(), member_loss=member_loss)
 

@@ -26,6 +26,7 @@ from torchrl_mbe.app.explorers.base import (
     Explorer,
     ExplorerContext,
     NoExploration,
+    QEnsemble,
     eps_schedule,
 )
 from torchrl_mbe.app.explorers.baselines import (
@@ -77,6 +78,7 @@ __all__ = [
     "NoisyExplorer",
     "PlanningExploration",
     "PlanningExplorer",
+    "QEnsemble",
     "RNDExploration",
     "RNDExplorer",
     "eps_schedule",

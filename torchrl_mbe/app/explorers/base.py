@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, NamedTuple
 
 import torch
 from omegaconf import MISSING, DictConfig
@@ -28,6 +28,14 @@ class ExplorationConfig:
 @dataclass
 class NoExploration(ExplorationConfig):
     name: str = "none"  # never explores: the greedy actor alone
+
+
+class QEnsemble(NamedTuple):
+    """The Q ensemble an explorer acts with (Bootstrapped DQN with randomized priors)."""
+
+    num_heads: int  # K
+    prior_scale: float  # Q_k = f_k + prior_scale * p_k
+    num_cells: list[int]  # each head's (and its prior's) hidden layers
 
 
 @dataclass
@@ -70,8 +78,8 @@ class Explorer:
         return None
 
     @classmethod
-    def q_ensemble(cls, exploration: DictConfig) -> tuple[int, float] | None:
-        """The ``(heads, prior scale)`` of the Q ensemble this explorer acts with (Bootstrapped DQN), or ``None`` for one Q-network."""
+    def q_ensemble(cls, exploration: DictConfig) -> QEnsemble | None:
+        """The Q ensemble this explorer acts with (Bootstrapped DQN), or ``None`` for one Q-network (``algo.num_cells``)."""
         return None
 
     @classmethod

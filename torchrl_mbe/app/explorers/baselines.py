@@ -13,7 +13,7 @@ from torchrl.envs.transforms import RNDTransform
 from torchrl.modules import MLP, MultiAgentMLP, reset_noise
 from torchrl.objectives import RNDLoss
 
-from torchrl_mbe.app.explorers.base import EGreedyExplorer, ExplorationConfig, Explorer, ExplorerContext
+from torchrl_mbe.app.explorers.base import EGreedyExplorer, ExplorationConfig, Explorer, ExplorerContext, QEnsemble
 from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, PROBABILITY, setting
 from torchrl_mbe.envs.transforms import BootstrapHeads, PopulationRNDTransform
@@ -149,6 +149,9 @@ class BootstrapExploration(ExplorationConfig):
     num_heads: int = setting(20, POSITIVE_INT)  # the ensemble's size K
     prior_scale: float = setting(5.0, NON_NEGATIVE)  # Q_k = f_k + prior_scale * p_k, p_k fixed and random; 0: no priors
     mask_prob: float = setting(1.0, PROBABILITY)  # each head's chance of training on a transition
+    num_cells: list[int] = setting(
+        [50, 50], LAYERS
+    )  # each head's and prior's hidden layers (in place of algo.num_cells)
 
 
 class BootstrapExplorer(Explorer):
@@ -169,5 +172,5 @@ class BootstrapExplorer(Explorer):
         return cls(context.actor)
 
     @classmethod
-    def q_ensemble(cls, exploration: DictConfig) -> tuple[int, float] | None:
-        return exploration.num_heads, exploration.prior_scale
+    def q_ensemble(cls, exploration: DictConfig) -> QEnsemble:
+        return QEnsemble(exploration.num_heads, exploration.prior_scale, list(exploration.num_cells))
