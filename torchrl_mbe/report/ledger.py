@@ -3,8 +3,8 @@
 ``docs/runs/`` holds the ``summary.json`` of every run the table cites (each with its
 ``record``: commit, machine, versions, command) and ``ledger.json``, one entry per row: the
 task, its kind of reward, the folder of its runs and the command that trains it. The numbers
-come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, any other
-as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
+come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, one of
+``exploration=bootstrap`` as Bootstrapped DQN, any other as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
 table and ``... --seeds`` the seed by seed table at the top of docs/results.md; a test
 fails when a doc's copy differs.
 """
@@ -21,8 +21,11 @@ __all__ = ["LEDGER_INDEX", "render_results_table", "render_seeds_table"]
 
 LEDGER_INDEX = "ledger.json"
 EGREEDY = "dqn+egreedy"
+BOOTSTRAP = "dqn+bootstrap"
+BASELINES = (BOOTSTRAP, EGREEDY)  # in the order the seed table lists them, after the default
 HEADER = (
-    "| task | reward | default explorer solved | e-greedy solved | median frames to solved (default) "
+    "| task | reward | default explorer solved | e-greedy solved | Bootstrapped DQN solved "
+    "| median frames to solved (default) "
     "| median seconds to solved (default, its seeds at once) | commit | command |"
 )
 SEEDS_HEADER = (
@@ -49,7 +52,7 @@ def render_results_table(ledger_dir: str | Path) -> str:
         >>> entry = {"task": "Toy-v0", "reward": "sparse", "runs": "toy", "command": "python train.py env=toy"}
         >>> _ = (ledger / "ledger.json").write_text(json.dumps([entry]))
         >>> print(render_results_table(ledger).splitlines()[-1])
-        | Toy-v0 | sparse | 2/3 | not run | 2,000 | 20 | 0123456 | `python train.py env=toy` |
+        | Toy-v0 | sparse | 2/3 | not run | not run | 2,000 | 20 | 0123456 | `python train.py env=toy` |
     """
     ledger_dir = Path(ledger_dir)
     entries = json.loads((ledger_dir / LEDGER_INDEX).read_text())
@@ -85,9 +88,13 @@ def render_seeds_table(ledger_dir: str | Path) -> str:
     rows = []
     for entry in json.loads((ledger_dir / LEDGER_INDEX).read_text()):
         summaries = _summaries(ledger_dir / entry["runs"])
-        for method in sorted({s["method"] for s in summaries}, key=lambda method: method == EGREEDY):
+        for method in sorted({s["method"] for s in summaries}, key=_listed_after_default):
             rows.append(_seeds_row(entry["task"], sorted((s for s in summaries if s["method"] == method), key=_seed)))
     return _table(SEEDS_HEADER, rows)
+
+
+def _listed_after_default(method: str) -> int:
+    return BASELINES.index(method) + 1 if method in BASELINES else 0
 
 
 def _seed(summary: dict) -> int:
@@ -120,14 +127,16 @@ def _summaries(runs_dir: Path) -> list[dict]:
 
 
 def _row(entry: dict, summaries: Sequence[dict]) -> str:
-    default = [s for s in summaries if s["method"] != EGREEDY]
+    default = [s for s in summaries if s["method"] not in BASELINES]
     egreedy = [s for s in summaries if s["method"] == EGREEDY]
+    bootstrap = [s for s in summaries if s["method"] == BOOTSTRAP]
     solved = [s for s in default if s["solved"]]
     cells = [
         entry["task"],
         entry["reward"],
         _solved(default),
         _solved(egreedy),
+        _solved(bootstrap),
         _median([s["solved_at_frames"] for s in solved]),
         _median([s["solved_at_wall_time_s"] for s in solved]),
         _commits(summaries),
