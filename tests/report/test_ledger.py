@@ -8,29 +8,30 @@ from pathlib import Path
 
 import pytest
 
-from torchrl_mbe.report.ledger import render_results_table, render_seeds_table
+from torchrl_mbe.report.ledger import render_deepsea_table, render_results_table, render_seeds_table
 
 REPO = Path(__file__).resolve().parents[2]
 LEDGER = REPO / "docs" / "runs"
-MARKERS = ("<!-- ledger: results table -->", "<!-- /ledger -->")
-SEEDS_MARKERS = ("<!-- ledger: seeds table -->", "<!-- /ledger -->")
 PROCESS_TALK = re.compile(r"worktree|\bsession\b|\bof mine\b|machine time|\bthe issue\b|issue's", re.IGNORECASE)
+RENDERED = [  # (doc, the table's name in its markers, what renders it, the command that prints it)
+    ("README.md", "results table", render_results_table, "python -m torchrl_mbe.report.ledger docs/runs"),
+    ("docs/results.md", "seeds table", render_seeds_table, "python -m torchrl_mbe.report.ledger docs/runs --seeds"),
+    (
+        "docs/results.md",
+        "deepsea table",
+        render_deepsea_table,
+        "python -m torchrl_mbe.report.ledger docs/runs --deepsea",
+    ),
+]
 
 
-def test_the_readme_results_table_is_the_one_the_ledger_renders():
-    readme = (REPO / "README.md").read_text()
-    start, end = readme.index(MARKERS[0]) + len(MARKERS[0]), readme.index(MARKERS[1])
-    assert readme[start:end].strip() == render_results_table(LEDGER), (
-        "README.md's results table differs from the ledger; paste `python -m torchrl_mbe.report.ledger docs/runs`"
-    )
-
-
-def test_the_results_pages_seed_by_seed_table_is_the_one_the_ledger_renders():
-    results = (REPO / "docs" / "results.md").read_text()
-    start, end = results.index(SEEDS_MARKERS[0]) + len(SEEDS_MARKERS[0]), results.index(SEEDS_MARKERS[1])
-    assert results[start:end].strip() == render_seeds_table(LEDGER), (
-        "docs/results.md's seed table differs from the ledger; paste `python -m torchrl_mbe.report.ledger docs/runs --seeds`"
-    )
+@pytest.mark.parametrize(("doc", "table", "render", "command"), RENDERED, ids=[row[1] for row in RENDERED])
+def test_each_published_table_is_the_one_the_ledger_renders(doc, table, render, command):
+    text = (REPO / doc).read_text()
+    opening = f"<!-- ledger: {table} -->"
+    start = text.index(opening) + len(opening)
+    end = text.index("<!-- /ledger -->", start)
+    assert text[start:end].strip() == render(LEDGER), f"{doc}'s {table} differs from the ledger; paste `{command}`"
 
 
 def test_every_ledger_run_records_its_commit_machine_and_command():

@@ -5,21 +5,23 @@
 task, its kind of reward, the folder of its runs and the command that trains it. The numbers
 come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, one of
 ``exploration=bootstrap`` as Bootstrapped DQN, any other as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
-table and ``... --seeds`` the seed by seed table at the top of docs/results.md; a test
-fails when a doc's copy differs.
+table, ``... --seeds`` the seed by seed table at the top of docs/results.md and ``... --deepsea``
+its DeepSea table (``deepsea.json``'s rows, by size); a test fails when a doc's copy differs.
 """
 
 from __future__ import annotations
 
 import json
+import re
 import statistics
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["LEDGER_INDEX", "render_results_table", "render_seeds_table"]
+__all__ = ["DEEPSEA_INDEX", "LEDGER_INDEX", "render_deepsea_table", "render_results_table", "render_seeds_table"]
 
 LEDGER_INDEX = "ledger.json"
+DEEPSEA_INDEX = "deepsea.json"  # DeepSea's rows by size: [{"size": N, "runs": folder}, ...]
 EGREEDY = "dqn+egreedy"
 BOOTSTRAP = "dqn+bootstrap"
 BASELINES = (BOOTSTRAP, EGREEDY)  # in the order the seed table lists them, after the default
@@ -27,6 +29,9 @@ HEADER = (
     "| task | reward | default explorer solved | e-greedy solved | Bootstrapped DQN solved "
     "| median frames to solved (default) "
     "| median seconds to solved (default, its seeds at once) | commit | command |"
+)
+DEEPSEA_HEADER = (
+    "| N | explorer | seeds | solved | episodes to solved, each seed | median [min, max] | commit | command |"
 )
 SEEDS_HEADER = (
     "| task | explorer | solved | frames to the first solved evaluation: median [each seed; unsolved: its final "
@@ -91,6 +96,60 @@ def render_seeds_table(ledger_dir: str | Path) -> str:
         for method in sorted({s["method"] for s in summaries}, key=_listed_after_default):
             rows.append(_seeds_row(entry["task"], sorted((s for s in summaries if s["method"] == method), key=_seed)))
     return _table(SEEDS_HEADER, rows)
+
+
+def render_deepsea_table(ledger_dir: str | Path) -> str:
+    """docs/results.md's DeepSea table: a row per ``deepsea.json`` entry and explorer, each seed's episodes to solved.
+
+    Episodes to solved are the frames to the first solved evaluation over ``N`` (an
+    episode of DeepSea is ``N`` steps); an unsolved seed shows ``-``. The command is the
+    runs' without its ``seed=`` (the seeds column says which).
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_deepsea_table
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for seed, solved_at in enumerate([2000, 4000, None]):
+        ...     run = ledger / "deepsea-10" / f"seed{seed}"
+        ...     run.mkdir(parents=True)
+        ...     summary = {"method": "dqn+bootstrap", "seed": seed, "solved": solved_at is not None,
+        ...                "solved_at_frames": solved_at, "record": {"commit": "0123456789abcdef",
+        ...                "command": f"python train.py env=deepsea env.size=10 exploration=bootstrap seed={seed}"}}
+        ...     _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> _ = (ledger / "deepsea.json").write_text(json.dumps([{"size": 10, "runs": "deepsea-10"}]))
+        >>> print(render_deepsea_table(ledger).splitlines()[-1])
+        | 10 | bootstrap | 0-2 | 2/3 | 200, 400, - | 300 [200, 400] | 0123456 | `python train.py env=deepsea env.size=10 exploration=bootstrap` |
+    """
+    ledger_dir = Path(ledger_dir)
+    rows = []
+    for entry in json.loads((ledger_dir / DEEPSEA_INDEX).read_text()):
+        summaries = _summaries(ledger_dir / entry["runs"])
+        for method in sorted({s["method"] for s in summaries}, key=_listed_after_default):
+            runs = sorted((s for s in summaries if s["method"] == method), key=_seed)
+            rows.append(_deepsea_row(entry["size"], runs))
+    return _table(DEEPSEA_HEADER, rows)
+
+
+def _deepsea_row(size: int, summaries: Sequence[dict]) -> str:
+    episodes = [s["solved_at_frames"] // size if s["solved"] else None for s in summaries]
+    solved = [count for count in episodes if count is not None]
+    seeds = [s["seed"] for s in summaries]
+    cells = [
+        str(size),
+        summaries[0]["method"].removeprefix("dqn+"),
+        f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) else ", ".join(map(str, seeds)),
+        _solved(summaries),
+        ", ".join("-" if count is None else f"{count:,}" for count in episodes),
+        f"{_median(solved)} [{min(solved):,}, {max(solved):,}]" if solved else "–",
+        _commits(summaries),
+        " / ".join(f"`{command}`" for command in sorted({_without_seed(s["record"]["command"]) for s in summaries})),
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def _without_seed(command: str) -> str:
+    return re.sub(r" seed=\d+", "", command)
 
 
 def _listed_after_default(method: str) -> int:
@@ -164,7 +223,9 @@ def _median(values: Sequence[float]) -> str:
     return f"{statistics.median(values):,.0f}" if values else "–"
 
 
+RENDERERS = {"--seeds": render_seeds_table, "--deepsea": render_deepsea_table}
+
 if __name__ == "__main__":
-    arguments = [argument for argument in sys.argv[1:] if argument != "--seeds"]
-    render = render_seeds_table if "--seeds" in sys.argv else render_results_table
+    arguments = [argument for argument in sys.argv[1:] if argument not in RENDERERS]
+    render = next((RENDERERS[flag] for flag in sys.argv[1:] if flag in RENDERERS), render_results_table)
     print(render(arguments[0] if arguments else "docs/runs"))
