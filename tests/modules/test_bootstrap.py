@@ -16,6 +16,7 @@ from torchrl.modules import MLP, QValueActor
 from torchrl.objectives import DQNLoss
 
 from torchrl_mbe import make_env
+from torchrl_mbe.app.optim import GradientStep
 from torchrl_mbe.envs.transforms import BootstrapHeads
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
 from torchrl_mbe.modules.normalization import Standardize
@@ -226,3 +227,15 @@ def test_the_documented_pipeline_runs_as_written_and_its_greedy_ensemble_balance
         greedy_steps = env.rollout(500, actor).numel()  # no "head": the heads' mean acts
     episode_lengths = buffer[:]["next", "step_count"][buffer[:]["next", "done"]]
     assert greedy_steps > 2 * episode_lengths[:10].float().mean()  # 107 against 25 as written
+
+
+@pytest.mark.parametrize(("num_members", "reported"), [(1, 0.5), (3, [0.5, 2.5, 4.5])])
+def test_an_ensembles_step_reports_each_members_mean_loss_over_its_heads_and_clips_each_head(num_members, reported):
+    weights = nn.Parameter(torch.ones(2 * num_members))
+    head_losses = lambda scale: weights * scale  # [M * K] losses, head h's gradient scale[h]
+    step = GradientStep(
+        head_losses, torch.optim.SGD([weights], lr=1.0), 1.0, num_members=2 * num_members, heads_per_member=2
+    )
+    assert step(torch.arange(2.0 * num_members)) == reported
+    moved = 1.0 - weights.detach()
+    torch.testing.assert_close(moved, torch.arange(2.0 * num_members).clamp(max=1.0))  # each head's norm clipped to 1
