@@ -33,6 +33,7 @@ def test_a_population_plans_with_the_oracle_one_grid_per_member(compose_default,
         assert any(float(row["return"]) > 0.5 for row in episodes)  # both members found the treasure
 
 
+@pytest.mark.slow  # a research preset (env=deepsea trains as the categorical one, tested below): the suite's longest run
 def test_the_learned_preset_solves_deepsea_10_on_every_member_within_400_episodes(compose_default, tmp_path):
     # With the preset's earlier model (two standardized layers of 64, the default variance floor) seeds 0-4
     # solved 3 of 5 within 1,500 episodes (docs/results.md, section 6); dithering needs 1,024 to find it once.

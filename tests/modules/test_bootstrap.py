@@ -239,3 +239,46 @@ def test_an_ensembles_step_reports_each_members_mean_loss_over_its_heads_and_cli
     assert step(torch.arange(2.0 * num_members)) == reported
     moved = 1.0 - weights.detach()
     torch.testing.assert_close(moved, torch.arange(2.0 * num_members).clamp(max=1.0))  # each head's norm clipped to 1
+
+
+@pytest.mark.parametrize("num_members", [None, 2])
+def test_an_ensemble_on_one_hot_codes_computes_from_the_hot_entries_what_the_product_computes(num_members):
+    groups = (30, 7)  # two categorical variables: every code has two ones
+    members = () if num_members is None else (num_members,)
+    networks = []
+    for hot_entries in (None, 2):
+        torch.manual_seed(0)
+        network = EnsembleQNetwork(37, 3, [16, 16], 4, 5.0, num_members=num_members, hot_entries=hot_entries)
+        networks.append(BootstrappedQValueActor(network, SPEC))
+    generator = torch.Generator().manual_seed(1)
+    codes = lambda: torch.cat(
+        [nn.functional.one_hot(torch.randint(size, (64, *members), generator=generator), size) for size in groups], -1
+    ).float()
+    batch = TensorDict(
+        observation=codes(),
+        action=SPEC.rand((64, *members)),
+        next=TensorDict(
+            observation=codes(),
+            reward=torch.randn(64, *members, 1, generator=generator),
+            done=torch.zeros(64, *members, 1, dtype=torch.bool),
+            terminated=torch.zeros(64, *members, 1, dtype=torch.bool),
+            bootstrap_mask=torch.ones(64, *members, 4, dtype=torch.bool),
+        ),
+        batch_size=[64, *members],
+    )
+    gradients = []
+    for actor in networks:
+        loss = BootstrapDQNLoss(actor, **LOSS_OPTIONS)
+        loss.make_value_estimator(gamma=0.99)
+        loss(batch.clone())["loss"].backward()
+        gradients.append([value.grad for value in actor.network.trainable.params.values(True, True)])
+    for dense, sparse in zip(*gradients):
+        torch.testing.assert_close(sparse, dense)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        values = [actor(batch.select("observation"))["action_value"] for actor in networks]
+    torch.testing.assert_close(values[1], values[0])
+
+
+def test_an_ensemble_refuses_to_standardize_the_one_hot_codes_it_reads_by_their_hot_entries():
+    with pytest.raises(ValueError, match="hot_entries reads raw one-hot codes: pass no input_norm"):
+        EnsembleQNetwork(9, 3, [16], 4, 5.0, input_norm=Standardize(9), hot_entries=1)

@@ -25,11 +25,13 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QEnsemble, explorer_of
+from torchrl_mbe.app.observation import observation_kind
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.population import StopOnInterrupt, open_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
+from torchrl_mbe.modules.dynamics import categorical_groups
 from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
@@ -248,6 +250,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         observation_size if num_members is None else (num_members, observation_size), device=device
     )
     ensemble = explorer_class.q_ensemble(cfg.exploration)  # a Bootstrapped DQN's heads, else None
+    observation_spec = env.observation_spec_unbatched["observation"]
     actor = make_q_actor(
         observation_size,
         action_spec,
@@ -257,6 +260,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         noise_std=explorer_class.q_network_noise(cfg.exploration),
         num_members=num_members,
         ensemble=ensemble,
+        hot_entries=None if algo.standardize_inputs else hot_entries(observation_spec),
     )
     q_loss = make_q_loss(actor, algo, action_spec, num_members)
     context = ExplorerContext(
@@ -292,6 +296,7 @@ def make_q_actor(
     noise_std: float | None = None,
     num_members: int | None = None,
     ensemble: QEnsemble | None = None,
+    hot_entries: int | None = None,
 ) -> QValueActor | BootstrappedQValueActor:
     """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
 
@@ -299,7 +304,8 @@ def make_q_actor(
     ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
     with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`);
     with ``ensemble`` it is a Bootstrapped DQN's (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`,
-    of ``ensemble.num_cells`` in place of ``num_cells``; one ensemble per member with ``num_members``).
+    of ``ensemble.num_cells`` in place of ``num_cells``; one ensemble per member with ``num_members``; its
+    first layer reads raw one-hot codes by their ``hot_entries`` ones, see :class:`EnsembleQNetwork`).
     """
     if ensemble is not None:
         network = EnsembleQNetwork(
@@ -310,6 +316,7 @@ def make_q_actor(
             ensemble.prior_scale,
             input_norm=input_norm,
             num_members=num_members,
+            hot_entries=hot_entries,
             device=device,
         )
         return BootstrappedQValueActor(network, action_spec)
@@ -327,6 +334,13 @@ def make_q_actor(
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
+
+
+def hot_entries(observation_spec: TensorSpec) -> int | None:
+    """How many ones a one-hot observation (``OneHot``, ``MultiOneHot``) holds: one per variable; ``None`` for any other."""
+    if observation_kind(observation_spec) != "one-hot":
+        return None
+    return len(categorical_groups(observation_spec))
 
 
 def make_q_loss(

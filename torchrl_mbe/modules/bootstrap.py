@@ -34,6 +34,12 @@ class EnsembleQNetwork(nn.Module):
     ``num_cells``, Glorot-uniform weights), ``p`` frozen at its initialization (no
     gradient, never in an optimizer's steps).
 
+    With ``hot_entries`` the observations are one-hot codes with exactly that many ones
+    (a ``OneHot`` spec's 1, a ``MultiOneHot``'s number of variables, read raw: no
+    ``input_norm``): each head's first layer then adds the weight columns of the hot
+    entries instead of multiplying by the whole vector. The values are those of the
+    product, at a fraction of its work when ``F`` is large (DeepSea's ``N * N`` cells).
+
     A population of ``M`` ensembles (``num_members``) maps ``[*B, M, K, F]`` to
     ``[*B, M, K, A]``: its ``M * K`` heads are stacked as one ``MultiAgentMLP``
     (member ``m``'s heads are ``m * K`` to ``m * K + K - 1``), and ``input_norm`` is
@@ -50,6 +56,7 @@ class EnsembleQNetwork(nn.Module):
         input_norm (nn.Module, optional): applied to the observations first
             (a :class:`~torchrl_mbe.modules.Standardize` of shape ``(F,)``, ``(M, F)`` with ``num_members``).
         num_members (int, optional): a population's ``M`` ensembles, each its own ``K`` heads.
+        hot_entries (int, optional): the number of ones in every observation, when it is one-hot codes.
         device (torch.device or str): where the parameters live. Defaults to ``"cpu"``.
 
     Examples:
@@ -59,6 +66,11 @@ class EnsembleQNetwork(nn.Module):
         >>> network(torch.zeros(8, 5, 2)).shape
         torch.Size([8, 5, 3])
         >>> sum(p.numel() for p in network.parameters() if p.requires_grad) == sum(p.numel() for p in network.prior.parameters())
+        True
+        >>> cells = torch.nn.functional.one_hot(torch.tensor([[7, 7, 7, 7, 7]]), 100).float()  # one cell, every head
+        >>> dense, sparse = EnsembleQNetwork(100, 3, [16], 5, 3.0), EnsembleQNetwork(100, 3, [16], 5, 3.0, hot_entries=1)
+        >>> _ = sparse.load_state_dict(dense.state_dict())
+        >>> torch.allclose(dense(cells), sparse(cells))
         True
         >>> population = EnsembleQNetwork(2, 3, [16], num_heads=5, prior_scale=3.0, num_members=4)
         >>> population(torch.zeros(8, 4, 5, 2)).shape, population.trainable.params["0", "weight"].shape
@@ -75,10 +87,14 @@ class EnsembleQNetwork(nn.Module):
         *,
         input_norm: nn.Module | None = None,
         num_members: int | None = None,
+        hot_entries: int | None = None,
         device: torch.device | str = "cpu",
     ) -> None:
         super().__init__()
+        if hot_entries is not None and input_norm is not None:
+            raise ValueError("hot_entries reads raw one-hot codes: pass no input_norm with it.")
         self.num_heads, self.prior_scale, self.num_members = num_heads, prior_scale, num_members
+        self.hot_entries = hot_entries
         self.input_norm = input_norm if input_norm is not None else nn.Identity()
         stacked = num_heads * (num_members or 1)
         self.trainable = make_members_mlp(observation_size, num_actions, num_cells, stacked, device=device)
@@ -87,12 +103,17 @@ class EnsembleQNetwork(nn.Module):
 
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         if self.num_members is None:
-            observation = self.input_norm(observation)
-            return self.trainable(observation) + self.prior_scale * self.prior(observation)
+            return self._heads(self.input_norm(observation))
         # each member's statistics (M, F) read [*B, K, M, F]; the M * K heads read [*B, M * K, F]
         observation = self.input_norm(observation.transpose(-3, -2)).transpose(-3, -2).flatten(-3, -2)
-        values = self.trainable(observation) + self.prior_scale * self.prior(observation)
-        return values.unflatten(-2, (self.num_members, self.num_heads))
+        return self._heads(observation).unflatten(-2, (self.num_members, self.num_heads))
+
+    def _heads(self, observation: torch.Tensor) -> torch.Tensor:
+        """``[*B, H, F]`` to ``[*B, H, A]``: each of the ``H`` stacked heads plus its scaled prior."""
+        if self.hot_entries is None:
+            return self.trainable(observation) + self.prior_scale * self.prior(observation)
+        hot = _hot_entries(observation, self.hot_entries)
+        return _on_hot_entries(self.trainable, hot) + self.prior_scale * _on_hot_entries(self.prior, hot)
 
     def member_state_dict(self, member: int) -> dict[str, torch.Tensor]:
         """Member ``member``'s ensemble of a population's (``num_members``), keyed as one ensemble's ``state_dict``.
@@ -105,6 +126,29 @@ class EnsembleQNetwork(nn.Module):
         for name in ("trainable", "prior"):
             state |= {f"{name}.{key}": value[heads] for key, value in getattr(self, name).state_dict().items()}
         return {key: value.clone() for key, value in state.items() if not value.is_meta}
+
+
+def _hot_entries(observation: torch.Tensor, count: int) -> torch.Tensor:
+    """The indices ``[*B, H, count]`` of the ones in one-hot codes ``[*B, H, F]``, found once where every head reads the same codes."""
+    if observation.stride(-2) == 0:  # one observation expanded to every head: its rows are one row
+        return observation[..., :1, :].topk(count, dim=-1).indices.expand(*observation.shape[:-1], count)
+    return observation.topk(count, dim=-1).indices
+
+
+def _on_hot_entries(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
+    """A ``make_members_mlp`` network's ``[*B, H, A]`` output on one-hot codes given by their hot entries ``[*B, H, E]``.
+
+    The first layer sums the hot entries' weight columns (its product with the codes);
+    the others multiply as ``MultiAgentMLP`` does, its ReLU between layers, from its
+    stacked parameters (``network.params``: layers ``"0"``, ``"2"``, ...).
+    """
+    layers = [network.params[name] for name in sorted(network.params.keys(), key=int)]
+    first, *others = layers
+    heads = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [H, 1]
+    hidden = first["weight"][heads, :, hot].sum(-2) + first["bias"]  # [*B, H, hot, C] summed: [*B, H, C]
+    for layer in others:
+        hidden = torch.einsum("...hi,hoi->...ho", torch.relu(hidden), layer["weight"]) + layer["bias"]
+    return hidden
 
 
 class _AllHeads(nn.Module):
