@@ -57,6 +57,15 @@ def test_env_deepsea_alone_trains_as_the_categorical_preset(compose_default):
     assert settings["matched"] == settings["preset"]
 
 
+@pytest.mark.parametrize("exploration", ["bootstrap", "egreedy", "rnd"])
+def test_an_explorer_without_a_dynamics_model_gets_only_raw_inputs_on_a_one_hot_observation(
+    compose_default, exploration
+):
+    cfg = compose_default("env=deepsea", f"exploration={exploration}")
+    changes = match_observation(cfg, config_observation_spec(cfg), named={"exploration"})
+    assert changes == ["algo.standardize_inputs=false"]
+
+
 def test_what_the_command_line_names_wins_over_the_observation(compose_default):
     cfg = compose_default("env=deepsea", "exploration=gaussian", "dynamics.num_cells=[32]")
     changes = match_observation(cfg, config_observation_spec(cfg), named={"exploration", "dynamics.num_cells"})

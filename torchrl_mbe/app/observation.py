@@ -21,7 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from torchrl.data import MultiOneHot, OneHot, TensorSpec
 
 from torchrl_mbe.app.environments import config_observation_spec
-from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration
+from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration, PlanningExplorer, explorer_of
 
 __all__ = [
     "CATEGORICAL_DYNAMICS",
@@ -73,7 +73,8 @@ def match_observation(cfg: DictConfig, observation_spec: TensorSpec, named: set[
     if not _names(named, "exploration") and cfg.exploration.name == GaussianExploration.name:
         cfg.exploration = OmegaConf.structured(COUNTS_EXPLORATION)
         changes.append("exploration=diagonal (window=null, added_variance=1e-3)")
-    if not _names(named, "dynamics") and cfg.dynamics.name == "mlp":
+    plans = issubclass(explorer_of(cfg.exploration), PlanningExplorer)  # the only explorers with a dynamics model
+    if plans and not _names(named, "dynamics") and cfg.dynamics.name == "mlp":
         for key, value in CATEGORICAL_DYNAMICS.items():
             cfg.dynamics[key] = value
             changes.append(f"dynamics.{key}={value}")
