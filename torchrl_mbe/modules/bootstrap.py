@@ -104,16 +104,21 @@ class EnsembleQNetwork(nn.Module):
     def forward(self, observation: torch.Tensor) -> torch.Tensor:
         if self.num_members is None:
             return self._heads(self.input_norm(observation))
-        # each member's statistics (M, F) read [*B, K, M, F]; the M * K heads read [*B, M * K, F]
-        observation = self.input_norm(observation.transpose(-3, -2)).transpose(-3, -2).flatten(-3, -2)
+        # each member's statistics (M, F) read [*B, K, M, F]; the M * K heads are one dimension
+        observation = self.input_norm(observation.transpose(-3, -2)).transpose(-3, -2)
         return self._heads(observation).unflatten(-2, (self.num_members, self.num_heads))
 
     def _heads(self, observation: torch.Tensor) -> torch.Tensor:
-        """``[*B, H, F]`` to ``[*B, H, A]``: each of the ``H`` stacked heads plus its scaled prior."""
+        """``[*B, (M,) K, F]`` to ``[*B, H, A]``: each of the ``H = (M *) K`` stacked heads plus its scaled prior."""
         if self.hot_entries is None:
+            observation = self._stacked(observation)
             return self.trainable(observation) + self.prior_scale * self.prior(observation)
-        hot = _hot_entries(observation, self.hot_entries)
+        hot = self._stacked(_hot_entries(observation, self.hot_entries))  # found before an expanded view is copied
         return _on_hot_entries(self.trainable, hot) + self.prior_scale * _on_hot_entries(self.prior, hot)
+
+    def _stacked(self, per_head: torch.Tensor) -> torch.Tensor:
+        """A population's ``[*B, M, K, ...]`` as its stacked heads' ``[*B, M * K, ...]``; one ensemble's as it is."""
+        return per_head.flatten(-3, -2) if self.num_members is not None else per_head
 
     def member_state_dict(self, member: int) -> dict[str, torch.Tensor]:
         """Member ``member``'s ensemble of a population's (``num_members``), keyed as one ensemble's ``state_dict``.
