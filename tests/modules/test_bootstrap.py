@@ -199,10 +199,13 @@ def test_the_actor_takes_a_composite_spec_and_declares_its_outputs_as_a_q_value_
     assert set(actor.spec.keys()) == set(QValueActor(MLP(out_features=3), spec=SPEC).spec.keys())
 
 
-def test_the_actor_compiles_with_fullgraph_and_acts_as_the_eager_one():
-    actor = ensemble(4)
+@pytest.mark.parametrize("hot_entries", [None, 1])
+def test_the_actor_compiles_with_fullgraph_and_acts_as_the_eager_one(hot_entries):
+    torch.manual_seed(0)
+    actor = BootstrappedQValueActor(EnsembleQNetwork(25, 3, [16], 4, 5.0, hot_entries=hot_entries), SPEC)
     compiled = torch.compile(actor, fullgraph=True, backend="aot_eager")
-    td = TensorDict(observation=torch.randn(6, OBSERVATION_SIZE), head=torch.arange(6) % 4, batch_size=[6])
+    cells = nn.functional.one_hot(torch.randint(25, (6,)), 25).float()
+    td = TensorDict(observation=cells, head=torch.arange(6) % 4, batch_size=[6])
     with set_exploration_type(ExplorationType.RANDOM):
         assert torch.equal(compiled(td.clone())["action"], actor(td.clone())["action"])
 
