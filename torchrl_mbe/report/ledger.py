@@ -92,9 +92,7 @@ def render_seeds_table(ledger_dir: str | Path) -> str:
     ledger_dir = Path(ledger_dir)
     rows = []
     for entry in json.loads((ledger_dir / LEDGER_INDEX).read_text()):
-        summaries = _summaries(ledger_dir / entry["runs"])
-        for method in sorted({s["method"] for s in summaries}, key=_listed_after_default):
-            rows.append(_seeds_row(entry["task"], sorted((s for s in summaries if s["method"] == method), key=_seed)))
+        rows += [_seeds_row(entry["task"], runs) for runs in _by_method(_summaries(ledger_dir / entry["runs"]))]
     return _table(SEEDS_HEADER, rows)
 
 
@@ -124,10 +122,7 @@ def render_deepsea_table(ledger_dir: str | Path) -> str:
     ledger_dir = Path(ledger_dir)
     rows = []
     for entry in json.loads((ledger_dir / DEEPSEA_INDEX).read_text()):
-        summaries = _summaries(ledger_dir / entry["runs"])
-        for method in sorted({s["method"] for s in summaries}, key=_listed_after_default):
-            runs = sorted((s for s in summaries if s["method"] == method), key=_seed)
-            rows.append(_deepsea_row(entry["size"], runs))
+        rows += [_deepsea_row(entry["size"], runs) for runs in _by_method(_summaries(ledger_dir / entry["runs"]))]
     return _table(DEEPSEA_HEADER, rows)
 
 
@@ -143,13 +138,23 @@ def _deepsea_row(size: int, summaries: Sequence[dict]) -> str:
         ", ".join("-" if count is None else f"{count:,}" for count in episodes),
         f"{_median(solved)} [{min(solved):,}, {max(solved):,}]" if solved else "–",
         _commits(summaries),
-        " / ".join(f"`{command}`" for command in sorted({_without_seed(s["record"]["command"]) for s in summaries})),
+        _commands({_without_seed(s["record"]["command"]) for s in summaries}),
     ]
     return "| " + " | ".join(cells) + " |"
 
 
 def _without_seed(command: str) -> str:
     return re.sub(r" seed=\d+", "", command)
+
+
+def _by_method(summaries: Sequence[dict]) -> list[list[dict]]:
+    """The runs of each method, the default's first and then :data:`BASELINES`' order, each method's by seed."""
+    methods = sorted({s["method"] for s in summaries}, key=_listed_after_default)
+    return [sorted((s for s in summaries if s["method"] == method), key=_seed) for method in methods]
+
+
+def _commands(commands: set[str]) -> str:
+    return " / ".join(f"`{command}`" for command in sorted(commands))
 
 
 def _listed_after_default(method: str) -> int:
@@ -170,7 +175,7 @@ def _seeds_row(task: str, summaries: Sequence[dict]) -> str:
         f"{_median([s['solved_at_frames'] for s in solved])} [{each}]",
         _median([s["solved_at_wall_time_s"] for s in solved]),
         _commits(summaries),
-        " / ".join(f"`{command}`" for command in sorted({s["record"]["command"] for s in summaries})),
+        _commands({s["record"]["command"] for s in summaries}),
     ]
     return "| " + " | ".join(cells) + " |"
 
