@@ -47,6 +47,7 @@ from plain_reference import ReplayBuffer as PlainReplayBuffer
 from plain_reference import run as run_plain_reference
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase, TensorDictSequential
+from timing import median_seconds
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import OneHot, ReplayBuffer
@@ -74,8 +75,6 @@ LOOP_ALONE = (
     "train.episodes=1000000",
     "train.stop_when_solved=false",
 )
-from timing import median_seconds
-
 """Overrides that leave the training loop alone: no logging, evaluation or early stop."""
 
 
