@@ -5,7 +5,7 @@
     python bench/throughput.py --out my.json   # JSON elsewhere than bench/results/
     python bench/throughput.py --threads 2     # torch intra-op threads (default 1, as the app)
     python bench/throughput.py --only training breakdown   # some sections only
-    python bench/throughput.py --only population           # populations (population=N) against single runs
+    python bench/throughput.py --only population           # populations (population=N) against single runs, the headline table
     python bench/throughput.py --only gym_batch            # LunarLander batches: GymBatchEnv against SerialEnv
 
 Every figure is the median over ``repeats`` timed blocks (``time.perf_counter``)
@@ -482,8 +482,12 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     return results
 
 
+POPULATION_ENVS = ("mountaincar", "cartpole", "acrobot", "lunarlander")
+"""The envs of the population section and of the headline table, each with its default config."""
+
+
 def bench_population(budget: Budget) -> list[Measurement]:
-    """(h) ``population=N`` on each torch-batched classic-control env's default config, against single runs.
+    """(h) ``population=N`` on each of :data:`POPULATION_ENVS`' default config, against single runs.
 
     For N in ``population_sizes``: frames/s per member and summed over the N members,
     over ``population_frames`` frames per member (the loop alone: no evaluation).
@@ -493,7 +497,7 @@ def bench_population(budget: Budget) -> list[Measurement]:
     schedule once (on gymnasium's env), for ``/ plain``.
     """
     results = []
-    for env in ("mountaincar", "cartpole", "acrobot"):
+    for env in POPULATION_ENVS:
         per_member = {}
         for members in budget.population_sizes:
             cfg = default_config(f"env={env}", f"population={members}", f"train.max_frames={budget.population_frames}")
@@ -681,6 +685,30 @@ def print_table(measurements: list[Measurement]) -> None:
         print(f"  {m.name:<{width}}  {m.value:>12,.3f} {m.unit}")
 
 
+def headline(measurements: list[Measurement]) -> str:
+    """The population section as one table, an env a row: one run against the plain reference, N members against N single runs.
+
+    "one run" is ``population=1`` (the single-run path) and "plain" the plain PyTorch
+    reference's single run on the same per-member schedule; a column per population
+    size measured. Empty without the population section.
+    """
+    values = {m.name: m.value for m in measurements if m.section == "population"}
+    sizes = sorted({int(name.split("N=")[1].split(":")[0]) for name in values if " N=" in name} - {1})
+    envs = [env for env in POPULATION_ENVS if f"{env} N=1: frames/s per member" in values]
+    if not envs:
+        return ""
+    columns = ["env", "plain reference", "one run", "one run / plain"]
+    columns += [f"N={n}: summed / {n} single runs" for n in sizes] + [f"N={n}: summed / plain" for n in sizes]
+    rows = []
+    for env in envs:
+        plain, one = values[f"{env}: plain PyTorch reference, one run"], values[f"{env} N=1: frames/s per member"]
+        cells = [env, f"{plain:,.0f} frames/s", f"{one:,.0f} frames/s", f"{one / plain:.2f}x"]
+        cells += [f"{values[f'{env} N={n}: summed / N single runs']:.2f}x" for n in sizes]
+        cells += [f"{values[f'{env} N={n}: summed / plain']:.2f}x" for n in sizes]
+        rows.append("| " + " | ".join(cells) + " |")
+    return "\n".join(["| " + " | ".join(columns) + " |", "| --- " * len(columns) + "|", *rows])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="short smoke run")
@@ -699,6 +727,9 @@ def main() -> None:
     environment = machine()
     measurements = [m for name, section in SECTIONS.items() if name in (args.only or SECTIONS) for m in section(budget)]
     print_table(measurements)
+    table = headline(measurements)
+    if table:
+        print(f"\n[headline] populations against single runs and the plain reference\n{table}")
     suffix = ("-quick" if args.quick else "") + (f"-threads{args.threads}" if args.threads != 1 else "")
     out = args.out or RESULTS_DIR / f"throughput-{started:%Y-%m-%d-%H%M}{suffix}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
