@@ -115,29 +115,29 @@ def plot_frames_to_solved(env: str, groups: dict[str, list[Run]], colors: dict[s
     return save_figure(fig, path)
 
 
-def plot_deepsea_scaling(scaling: dict[str, dict[int, list[Run]]], path: Path) -> Path:
+def plot_deepsea_scaling(scaling: dict[str, dict[int, list[int | None]]], most_episodes: int, path: Path) -> Path:
     """Episodes to solved against DeepSea's size N, log-log, beside dithering's 2^N.
 
-    ``scaling[method][N]`` are the method's runs at size N (:func:`~torchrl_mbe.report.runs.deepsea_scaling`).
-    One dot per seed that solved and a line through each method's medians over them, its growth
-    exponent (:func:`~torchrl_mbe.report.runs.deepsea_growth`) in the legend; one cross per
-    seed that did not, stacked down from the top edge, above every run's episode count. Methods
-    are shifted a little sideways so that their markers do not hide each other.
+    ``scaling[method][N]`` holds each seed's episodes to solved at size N (``None``: never
+    solved); ``most_episodes`` is the longest run's episodes. One dot per seed that solved
+    and a line through each method's medians over them, its growth exponent
+    (:func:`~torchrl_mbe.report.runs.deepsea_growth`) in the legend; one cross per seed
+    that did not, stacked down from the top edge, above ``most_episodes``. Methods are
+    shifted a little sideways so that their markers do not hide each other.
     """
     fig = Figure(figsize=(8, 5.5), layout="constrained")
     ax = fig.add_subplot()
     top_edge = ax.get_xaxis_transform()  # x in data, y in axes coordinates
     sizes = sorted({size for by_size in scaling.values() for size in by_size})
-    most_episodes = max(len(run.returns) for by_size in scaling.values() for runs in by_size.values() for run in runs)
     for index, (method, by_size) in enumerate(scaling.items()):
         color, shift = f"C{index % 10}", 1.0 + 0.025 * (index - (len(scaling) - 1) / 2)
         medians = []
-        for size, runs in by_size.items():
-            solved = [run.episodes_to_solved for run in runs if run.episodes_to_solved is not None]
+        for size, episodes in by_size.items():
+            solved = [count for count in episodes if count is not None]
             ax.scatter([size * shift] * len(solved), solved, color=color, alpha=0.5, s=18, zorder=3)
             if solved:
                 medians.append((size * shift, float(np.median(solved))))
-            unsolved = len(runs) - len(solved)
+            unsolved = len(episodes) - len(solved)
             heights = 0.97 - 0.03 * np.arange(unsolved)
             ax.scatter([size * shift] * unsolved, heights, transform=top_edge, color=color, marker="x", s=30, zorder=4)
         xs, ys = zip(*medians) if medians else ((), ())

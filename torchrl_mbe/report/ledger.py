@@ -7,18 +7,29 @@ come from the summaries only: a run of ``exploration=egreedy`` counts as e-greed
 ``exploration=bootstrap`` as Bootstrapped DQN, any other as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
 table, ``... --seeds`` the seed by seed table at the top of docs/results.md and ``... --deepsea``
 its DeepSea table (``deepsea.json``'s rows, by size); a test fails when a doc's copy differs.
+``... --deepsea-figure PNG`` draws the DeepSea scaling figure from the same runs.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 import statistics
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["DEEPSEA_INDEX", "LEDGER_INDEX", "render_deepsea_table", "render_results_table", "render_seeds_table"]
+from torchrl_mbe.report.figures import plot_deepsea_scaling
+
+__all__ = [
+    "DEEPSEA_INDEX",
+    "LEDGER_INDEX",
+    "main",
+    "render_deepsea_figure",
+    "render_deepsea_table",
+    "render_results_table",
+    "render_seeds_table",
+]
 
 LEDGER_INDEX = "ledger.json"
 DEEPSEA_INDEX = "deepsea.json"  # DeepSea's rows by size: [{"size": N, "runs": folder}, ...]
@@ -126,8 +137,44 @@ def render_deepsea_table(ledger_dir: str | Path) -> str:
     return _table(DEEPSEA_HEADER, rows)
 
 
+def render_deepsea_figure(ledger_dir: str | Path, path: str | Path) -> Path:
+    """docs/results.md's DeepSea scaling figure, from the runs of its DeepSea table: each explorer's episodes to solved against N.
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_deepsea_figure
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for size in (10, 20):
+        ...     for seed in range(2):
+        ...         run = ledger / f"deepsea-{size}" / f"seed{seed}"
+        ...         run.mkdir(parents=True)
+        ...         summary = {"method": "dqn+bootstrap", "seed": seed, "solved": True, "episodes": 20 * size,
+        ...                    "solved_at_frames": 10 * size * size}
+        ...         _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> index = [{"size": size, "runs": f"deepsea-{size}"} for size in (10, 20)]
+        >>> _ = (ledger / "deepsea.json").write_text(json.dumps(index))
+        >>> render_deepsea_figure(ledger, ledger / "scaling.png").name
+        'scaling.png'
+    """
+    ledger_dir = Path(ledger_dir)
+    scaling: dict[str, dict[int, list[int | None]]] = {}
+    most_episodes = 0
+    for entry in json.loads((ledger_dir / DEEPSEA_INDEX).read_text()):
+        for runs in _by_method(_summaries(ledger_dir / entry["runs"])):
+            explorer = runs[0]["method"].removeprefix("dqn+")
+            scaling.setdefault(explorer, {})[entry["size"]] = _episodes_to_solved(entry["size"], runs)
+            most_episodes = max(most_episodes, *(s["episodes"] for s in runs))
+    return plot_deepsea_scaling(scaling, most_episodes, Path(path))
+
+
+def _episodes_to_solved(size: int, summaries: Sequence[dict]) -> list[int | None]:
+    """Each run's episodes to its first solved evaluation (a DeepSea episode is ``size`` steps); ``None`` if unsolved."""
+    return [s["solved_at_frames"] // size if s["solved"] else None for s in summaries]
+
+
 def _deepsea_row(size: int, summaries: Sequence[dict]) -> str:
-    episodes = [s["solved_at_frames"] // size if s["solved"] else None for s in summaries]
+    episodes = _episodes_to_solved(size, summaries)
     solved = [count for count in episodes if count is not None]
     seeds = [s["seed"] for s in summaries]
     cells = [
@@ -228,9 +275,24 @@ def _median(values: Sequence[float]) -> str:
     return f"{statistics.median(values):,.0f}" if values else "–"
 
 
-RENDERERS = {"--seeds": render_seeds_table, "--deepsea": render_deepsea_table}
+def main(argv: Sequence[str] | None = None) -> None:
+    """Prints a table of the ledger (the README's by default), or draws the DeepSea figure."""
+    parser = argparse.ArgumentParser(prog="python -m torchrl_mbe.report.ledger", description=main.__doc__)
+    parser.add_argument("ledger_dir", nargs="?", default="docs/runs", help="the ledger (default: docs/runs)")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--seeds", action="store_true", help="docs/results.md's seed by seed table")
+    which.add_argument("--deepsea", action="store_true", help="docs/results.md's DeepSea table")
+    which.add_argument("--deepsea-figure", metavar="PNG", help="draw docs/results.md's DeepSea scaling figure to PNG")
+    args = parser.parse_args(argv)
+    if args.deepsea_figure:
+        print(f"wrote {render_deepsea_figure(args.ledger_dir, args.deepsea_figure)}")
+    elif args.seeds:
+        print(render_seeds_table(args.ledger_dir))
+    elif args.deepsea:
+        print(render_deepsea_table(args.ledger_dir))
+    else:
+        print(render_results_table(args.ledger_dir))
+
 
 if __name__ == "__main__":
-    arguments = [argument for argument in sys.argv[1:] if argument not in RENDERERS]
-    render = next((RENDERERS[flag] for flag in sys.argv[1:] if flag in RENDERERS), render_results_table)
-    print(render(arguments[0] if arguments else "docs/runs"))
+    main()

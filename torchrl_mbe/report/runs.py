@@ -31,7 +31,7 @@ from __future__ import annotations
 import csv
 import json
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -347,18 +347,24 @@ class Growth:
     sizes: tuple[int, ...]
 
 
-def deepsea_growth(
-    by_size: dict[int, list[Run]], episode_of: Callable[[Run], int | None] = lambda run: run.episodes_to_solved
-) -> Growth | None:
-    """The log-log slope against N of the median of ``episode_of`` (episodes to solved by default) over the seeds that got there.
+def deepsea_growth(episodes_by_size: dict[int, list[int | None]]) -> Growth | None:
+    """The log-log slope against N of the median episodes (to solved, or to the first treasure) over the seeds that got there.
 
-    Fitted over the sizes where at least half of the seeds got there, so that a size that one
-    lucky seed reached does not bend the line; ``None`` where fewer than two sizes qualify.
+    ``episodes_by_size[N]`` holds each seed's episodes at size N, ``None`` for a seed
+    that never got there. Fitted over the sizes where at least half of the seeds got
+    there, so that a size that one lucky seed reached does not bend the line; ``None``
+    where fewer than two sizes qualify.
+
+    Examples:
+        >>> from torchrl_mbe.report.runs import deepsea_growth
+        >>> growth = deepsea_growth({10: [100, 100, None], 20: [400, 400], 30: [None, None, 5]})
+        >>> round(growth.exponent, 2), growth.sizes
+        (2.0, (10, 20))
     """
     medians = {}
-    for size, runs in by_size.items():
-        reached = [episode for episode in map(episode_of, runs) if episode is not None]
-        if reached and 2 * len(reached) >= len(runs):
+    for size, episodes in episodes_by_size.items():
+        reached = [episode for episode in episodes if episode is not None]
+        if reached and 2 * len(reached) >= len(episodes):
             medians[size] = float(np.median(reached))
     exponent = loglog_slope(list(medians), list(medians.values()))
     return None if exponent is None else Growth(exponent, tuple(medians))

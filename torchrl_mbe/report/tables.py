@@ -329,7 +329,10 @@ def _deepsea_scaling_section(
         ]
 
     written: list[Path] = []
-    figure = plot_deepsea_scaling(scaling, out_dir / f"scaling_{DEEPSEA}.png")
+    most_episodes = max(len(run.returns) for by_size in scaling.values() for runs in by_size.values() for run in runs)
+    figure = plot_deepsea_scaling(
+        _episodes(scaling, lambda run: run.episodes_to_solved), most_episodes, out_dir / f"scaling_{DEEPSEA}.png"
+    )
     lines = [f"## {DEEPSEA}: scaling with size N", "", *_embed(figure, "episodes to solved against N", written)]
     lines += ["### Episodes to solved", "", *_table(header, rows(lambda run: run.episodes_to_solved)), ""]
     growth_header = ["method", "episodes to solved ~ N^k: k", "sizes fitted", "first treasure ~ N^k: k", "sizes fitted"]
@@ -363,10 +366,22 @@ def _growth_rows(scaling: dict[str, dict[int, list[Run]]], window: int) -> list[
     def first_treasure(run: Run) -> int | None:
         return run.stats(window).first_success_episode
 
+    to_solved = _episodes(scaling, lambda run: run.episodes_to_solved)
+    to_treasure = _episodes(scaling, first_treasure)
     return [
-        [method, *cells(deepsea_growth(by_size)), *cells(deepsea_growth(by_size, first_treasure))]
-        for method, by_size in scaling.items()
+        [method, *cells(deepsea_growth(to_solved[method])), *cells(deepsea_growth(to_treasure[method]))]
+        for method in scaling
     ]
+
+
+def _episodes(
+    scaling: dict[str, dict[int, list[Run]]], episode_of: Callable[[Run], int | None]
+) -> dict[str, dict[int, list[int | None]]]:
+    """``episode_of`` each run of ``scaling``, by method and size."""
+    return {
+        method: {size: [episode_of(run) for run in runs] for size, runs in by_size.items()}
+        for method, by_size in scaling.items()
+    }
 
 
 def _embed(figure: Path | None, alt: str, written: list[Path]) -> list[str]:
