@@ -2,9 +2,10 @@
 
     python bench/minigrid_failures.py RUN_DIR                 # a population's run directory (seed<s>/best_policy.pt)
     python bench/minigrid_failures.py RUN_DIR --episodes 200  # more evaluation episodes per member (default 100)
+    python bench/minigrid_failures.py RUN_DIR --eps 0.05      # a random action with probability 0.05 (default 0: greedy)
 
 For each member of the run (its config from ``RUN_DIR/.hydra/config.yaml``), the greedy
-actor of its ``best_policy.pt`` plays ``--episodes`` episodes, one at a time, from the final
+actor of its ``best_policy.pt`` (e-greedy with ``--eps``) plays ``--episodes`` episodes, one at a time, from the final
 evaluation's start states (seed + 20,000). A failed episode is one that ends without the
 goal. For the successes and the failures apart, it prints: how many, the median length, the
 median of the most steps spent on one cell facing one way (a policy stuck in place spends
@@ -23,7 +24,9 @@ from pathlib import Path
 import torch
 from minigrid.core.actions import Actions
 from omegaconf import OmegaConf
+from tensordict.nn import TensorDictSequential
 from torchrl.envs import EnvBase, ExplorationType, set_exploration_type, step_mdp
+from torchrl.modules import EGreedyModule
 
 from torchrl_mbe.app.dqn import build_dqn_agent
 from torchrl_mbe.app.environments import make_run_env
@@ -63,10 +66,13 @@ def door_open(grid_env) -> bool:
     return any(cell is not None and cell.type == "door" and cell.is_open for cell in grid_env.grid.grid)
 
 
-def play(actor, env: EnvBase, episodes: int) -> dict[bool, Episodes]:
-    """``episodes`` greedy episodes of ``actor`` in ``env``, described by outcome (reached the goal or not)."""
+def play(actor, env: EnvBase, episodes: int, eps: float) -> dict[bool, Episodes]:
+    """``episodes`` episodes of ``actor`` in ``env``, e-greedy with ``eps``, described by outcome (reached the goal or not)."""
     outcomes = {True: Episodes(), False: Episodes()}
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+    if eps:
+        actor = TensorDictSequential(actor, EGreedyModule(env.action_spec, eps_init=eps, eps_end=eps))
+    exploration = ExplorationType.RANDOM if eps else ExplorationType.DETERMINISTIC
+    with set_exploration_type(exploration), torch.no_grad():
         for _ in range(episodes):
             state, places, actions, opened = env.reset(), collections.Counter(), collections.Counter(), False
             while True:
@@ -89,9 +95,11 @@ def play(actor, env: EnvBase, episodes: int) -> dict[bool, Episodes]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir", type=Path, help="a MiniGrid population's run directory")
-    parser.add_argument("--episodes", type=int, default=100, help="greedy episodes per member (default 100)")
+    parser.add_argument("--episodes", type=int, default=100, help="episodes per member (default 100)")
+    parser.add_argument("--eps", type=float, default=0.0, help="probability of a random action (default 0: greedy)")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    torch.manual_seed(0)  # the random actions of --eps
     cfg = OmegaConf.load(args.run_dir / ".hydra" / "config.yaml")
     members = [cfg.seed + member for member in range(cfg.population)]
     cfg.population, cfg.processes = 1, 1
@@ -100,7 +108,7 @@ def main() -> None:
         agent = build_dqn_agent(OmegaConf.merge(cfg, {"seed": seed}), env)
         best = torch.load(args.run_dir / f"seed{seed}" / "best_policy.pt", weights_only=True)
         agent.actor.load_state_dict(best["actor"])
-        outcomes = play(agent.actor, env, args.episodes)
+        outcomes = play(agent.actor, env, args.episodes, args.eps)
         print(
             f"seed {seed} (best policy at {best['frames']:,} frames): {len(outcomes[True].lengths)}/{args.episodes} reached the goal"
         )
