@@ -175,7 +175,7 @@ class Config:
     seed: int = setting(0, NON_NEGATIVE_INT)
     # >1: agents of seeds seed .. seed+population-1 trained as one batched program
     population: int = setting(1, POSITIVE_INT)
-    # a population's members split into this many processes side by side, at most one per member (null: one per core)
+    # a population's members split into this many processes side by side, at most one per member (null: one per core; one on cuda)
     processes: Optional[int] = setting(None, POSITIVE_INT.or_none())
     device: str = "cpu"  # cpu or cuda[:N]: networks, buffers and the collector's policy
     tag: str = "default"  # part of the run directory; presets set their own

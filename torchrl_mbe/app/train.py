@@ -19,7 +19,7 @@ from torchrl_mbe.app.replay import check_replay_fits
 from torchrl_mbe.app.run import RunFinished
 from torchrl_mbe.modules.dynamics import categorical_groups
 
-__all__ = ["LOOPS", "run_loop", "train"]
+__all__ = ["LOOPS", "default_processes", "run_loop", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +62,32 @@ def train(cfg: DictConfig, run_dir: str | Path | None = None) -> dict:
     run_dir = Path(run_dir) if run_dir is not None else Path(_hydra_output_dir())
     if cfg.algo.name == "dqn":  # every process's buffers together, before any part starts
         check_replay_fits(cfg.buffer, observation_spec.shape[-1], cfg.population, cfg.device, run_dir)
-    processes = cfg.processes or os.cpu_count() or 1
+    processes = default_processes(cfg)
     if cfg.population > 1 and processes > 1:
         return train_in_processes(cfg, run_dir, run_loop, processes)
     return run_loop(cfg, run_dir)
+
+
+def default_processes(cfg: DictConfig) -> int:
+    """How many processes a population splits into: ``processes``, else one per CPU core, or one on a GPU.
+
+    A GPU runs the whole population as one batched program; a process per core would
+    give each part its own CUDA context and its own share of the same GPU.
+
+    Examples:
+        >>> import os
+        >>> from omegaconf import OmegaConf
+        >>> from torchrl_mbe.app.train import default_processes
+        >>> default_processes(OmegaConf.create({"processes": None, "device": "cuda:0"}))
+        1
+        >>> default_processes(OmegaConf.create({"processes": None, "device": "cpu"})) == (os.cpu_count() or 1)
+        True
+        >>> default_processes(OmegaConf.create({"processes": 3, "device": "cuda"}))
+        3
+    """
+    if cfg.processes:
+        return cfg.processes
+    return 1 if str(cfg.device).startswith("cuda") else os.cpu_count() or 1
 
 
 def run_loop(cfg: DictConfig, run_dir: Path) -> dict:
