@@ -7,6 +7,8 @@
     python bench/throughput.py --only training breakdown   # some sections only
     python bench/throughput.py --only population           # populations (population=N) against single runs, the headline table
     python bench/throughput.py --only gym_batch            # LunarLander batches: GymBatchEnv against SerialEnv
+    python bench/throughput.py --only population --population-envs mountaincar --population-sizes 1,16,256,1024 --device cuda --compile
+                                                           # populations on a GPU, against one CPU run of the same schedule
 
 Every figure is the median over ``repeats`` timed blocks (``time.perf_counter``)
 after untimed warm-up calls; variants that are compared are timed in
@@ -19,6 +21,7 @@ Each section is a function ``(Budget) -> list[Measurement]`` named in :data:`SEC
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import functools
 import itertools
@@ -95,7 +98,7 @@ PAPER_LOOP = (
 
 @dataclass(frozen=True)
 class Budget:
-    """How long to measure: ``repeats`` timed blocks of ``calls`` calls after ``warmup`` calls.
+    """What to measure and for how long: ``repeats`` timed blocks of ``calls`` calls after ``warmup`` calls.
 
     A collector block is ``collector_batches`` batches of ``collector_steps`` steps of every env.
     A training-loop figure is the median of ``train_repeats`` runs of ``train_frames`` frames.
@@ -111,6 +114,9 @@ class Budget:
     reference_frames: int
     population_frames: int
     population_sizes: tuple[int, ...]
+    population_envs: tuple[str, ...] = ("mountaincar", "cartpole", "acrobot", "lunarlander")
+    population_device: str = "cpu"  # the populations' device (the app's ``device``); single CPU runs compare
+    population_compile: bool = False  # the populations' update compiled (the app's ``compile``)
 
 
 FULL = Budget(
@@ -482,29 +488,32 @@ def bench_against_plain_reference(budget: Budget) -> list[Measurement]:
     return results
 
 
-POPULATION_ENVS = ("mountaincar", "cartpole", "acrobot", "lunarlander")
-"""The envs of the population section and of the headline table, each with its default config."""
-
-
 def bench_population(budget: Budget) -> list[Measurement]:
-    """(h) ``population=N`` on each of :data:`POPULATION_ENVS`' default config, against single runs.
+    """(h) ``population=N`` on each env's default config (``population_envs``), against single runs.
 
     For N in ``population_sizes``: frames/s per member and summed over the N members,
-    over ``population_frames`` frames per member (the loop alone: no evaluation).
+    over ``population_frames`` frames per member (the loop alone: no evaluation), on
+    ``population_device`` (in the app's default processes: one per core, one on a GPU), compiled with ``population_compile``.
     N = 1 is the single-run path, so N single runs in sequence sum to its frames/s;
     ``/ N single runs`` is the population's summed frames/s over that. The plain
     PyTorch reference (``bench/plain_reference.py``) runs each env's per-member
-    schedule once (on gymnasium's env), for ``/ plain``.
+    schedule once (on gymnasium's env), for ``/ plain``; off the CPU, one eager CPU run
+    of the same schedule too, for ``/ one CPU run``.
     """
+    device, compiled = budget.population_device, budget.population_compile
+    on_device = (f"device={device}", f"compile={str(compiled).lower()}")
     results = []
-    for env in POPULATION_ENVS:
-        per_member = {}
-        for members in budget.population_sizes:
-            cfg = default_config(f"env={env}", f"population={members}", f"train.max_frames={budget.population_frames}")
-            per_member[members] = training_frames_per_s(cfg)
-        single = default_config(f"env={env}", f"train.max_frames={budget.population_frames}")
-        plain = run_plain_reference(plain_config_of(single))["frames_per_s"]
+    for env in budget.population_envs:
+        schedule = (f"env={env}", f"train.max_frames={budget.population_frames}")
+        per_member = {
+            members: training_frames_per_s(default_config(*schedule, f"population={members}", *on_device))
+            for members in budget.population_sizes
+        }
+        plain = run_plain_reference(plain_config_of(default_config(*schedule)))["frames_per_s"]
         results.append(Measurement("population", f"{env}: plain PyTorch reference, one run", plain, "frames/s"))
+        cpu = training_frames_per_s(default_config(*schedule)) if device != "cpu" else None
+        if cpu is not None:
+            results.append(Measurement("population", f"{env}: one CPU run", cpu, "frames/s"))
         for members, frames_per_s in per_member.items():
             summed = members * frames_per_s
             results += [
@@ -513,6 +522,8 @@ def bench_population(budget: Budget) -> list[Measurement]:
                 Measurement("population", f"{env} N={members}: summed / N single runs", summed / per_member[1], "x"),
                 Measurement("population", f"{env} N={members}: summed / plain", summed / plain, "x"),
             ]
+            if cpu is not None:
+                results.append(Measurement("population", f"{env} N={members}: summed / one CPU run", summed / cpu, "x"))
     return results
 
 
@@ -690,23 +701,34 @@ def headline(measurements: list[Measurement]) -> str:
 
     "one run" is ``population=1`` (the single-run path) and "plain" the plain PyTorch
     reference's single run on the same per-member schedule; a column per population
-    size measured. Empty without the population section.
+    size measured, and per size against one CPU run where the populations ran on
+    another device. Empty without the population section.
     """
     values = {m.name: m.value for m in measurements if m.section == "population"}
-    sizes = sorted({int(name.split("N=")[1].split(":")[0]) for name in values if " N=" in name} - {1})
-    envs = [env for env in POPULATION_ENVS if f"{env} N=1: frames/s per member" in values]
+    envs = list(dict.fromkeys(name.split(" N=1:")[0] for name in values if " N=1: frames/s per member" in name))
     if not envs:
         return ""
+    sizes = sorted({int(name.split(" N=")[1].split(":")[0]) for name in values if " N=" in name} - {1})
+    ratios = [("summed / N single runs", "summed / {n} single runs"), ("summed / plain", "summed / plain")]
+    if any(name.endswith("summed / one CPU run") for name in values):
+        ratios.append(("summed / one CPU run", "summed / one CPU run"))
     columns = ["env", "plain reference", "one run", "one run / plain"]
-    columns += [f"N={n}: summed / {n} single runs" for n in sizes] + [f"N={n}: summed / plain" for n in sizes]
+    columns += [f"N={n}: {title.format(n=n)}" for _, title in ratios for n in sizes]
     rows = []
     for env in envs:
         plain, one = values[f"{env}: plain PyTorch reference, one run"], values[f"{env} N=1: frames/s per member"]
         cells = [env, f"{plain:,.0f} frames/s", f"{one:,.0f} frames/s", f"{one / plain:.2f}x"]
-        cells += [f"{values[f'{env} N={n}: summed / N single runs']:.2f}x" for n in sizes]
-        cells += [f"{values[f'{env} N={n}: summed / plain']:.2f}x" for n in sizes]
+        cells += [f"{values[f'{env} N={n}: {ratio}']:.2f}x" for ratio, _ in ratios for n in sizes]
         rows.append("| " + " | ".join(cells) + " |")
     return "\n".join(["| " + " | ".join(columns) + " |", "| --- " * len(columns) + "|", *rows])
+
+
+def population_sizes(text: str) -> tuple[int, ...]:
+    """``--population-sizes``: member counts, the first 1 (the single run every ratio divides by)."""
+    sizes = tuple(int(size) for size in text.split(","))
+    if sizes[0] != 1 or min(sizes) < 1:
+        raise argparse.ArgumentTypeError(f"{text}: expected positive member counts starting with 1, e.g. 1,16,256")
+    return sizes
 
 
 def main() -> None:
@@ -718,10 +740,20 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
     parser.add_argument("--only", nargs="+", choices=list(SECTIONS), help="run these sections only (default: all)")
     parser.add_argument("--note", default="", help="free text stored in the JSON (e.g. which code was measured)")
+    parser.add_argument("--population-sizes", type=population_sizes, help="population section: e.g. 1,16,256,1024")
+    parser.add_argument("--population-envs", nargs="+", help="population section: envs (default: the four classic)")
+    parser.add_argument("--device", default="cpu", help="population section: the populations' device (e.g. cuda)")
+    parser.add_argument("--compile", action="store_true", help="population section: compile the populations' update")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     torch.set_flush_denormal(True)  # as train(cfg) and the plain reference do
-    budget = QUICK if args.quick else FULL
+    budget = dataclasses.replace(
+        QUICK if args.quick else FULL,
+        population_device=args.device,
+        population_compile=args.compile,
+        **({"population_sizes": args.population_sizes} if args.population_sizes else {}),
+        **({"population_envs": tuple(args.population_envs)} if args.population_envs else {}),
+    )
     torch.manual_seed(0)
     started = datetime.datetime.now()
     environment = machine()
