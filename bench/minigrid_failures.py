@@ -100,7 +100,12 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     torch.manual_seed(0)  # the random actions of --eps
-    cfg = OmegaConf.load(args.run_dir / ".hydra" / "config.yaml")
+    config = args.run_dir / ".hydra" / "config.yaml"
+    if not config.is_file():
+        parser.error(f"{args.run_dir}: no .hydra/config.yaml; expected the run directory of a MiniGrid population")
+    cfg = OmegaConf.load(config)
+    if not any(suite in cfg.env.name for suite in ("MiniGrid", "BabyAI")):
+        parser.error(f"{args.run_dir}: a run of {cfg.env.name}; expected a MiniGrid or BabyAI task")
     members = [cfg.seed + member for member in range(cfg.population)]
     cfg.population, cfg.processes = 1, 1
     for seed in members:
