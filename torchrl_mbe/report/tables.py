@@ -318,14 +318,8 @@ def _deepsea_scaling_section(
 
     def rows(episode_of: Callable[[Run], int | None]) -> list[list[str]]:
         return [
-            [
-                method,
-                *(
-                    _count_median_range([episode_of(r) for r in by_size[n]]) if n in by_size else _MISSING
-                    for n in sizes
-                ),
-            ]
-            for method, by_size in scaling.items()
+            [method, *(_count_median_range(by_size[n]) if n in by_size else _MISSING for n in sizes)]
+            for method, by_size in _episodes(scaling, episode_of).items()
         ]
 
     written: list[Path] = []
