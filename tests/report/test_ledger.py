@@ -49,3 +49,21 @@ def test_every_ledger_run_records_its_commit_machine_and_command():
 def test_the_docs_say_what_was_measured_not_how_the_work_was_organized(doc):
     found = [line for line in (REPO / doc).read_text().splitlines() if PROCESS_TALK.search(line)]
     assert not found, f"{doc}: {found[:3]}"
+
+
+def test_runs_at_earlier_settings_stay_in_the_seed_table_and_out_of_the_readme(tmp_path):
+    for folder, solved_at in (("now", 1000), ("before", None)):
+        run = tmp_path / folder / "seed0"
+        run.mkdir(parents=True)
+        summary = {"method": "dqn+gaussian", "seed": 0, "solved": solved_at is not None, "solved_at_frames": solved_at,
+                   "solved_at_wall_time_s": solved_at and 10, "final_eval_success_rate": 0.5,
+                   "record": {"commit": "0" * 40, "command": "python train.py env=toy"}}  # fmt: skip
+        (run / "summary.json").write_text(json.dumps(summary))
+    entries = [
+        {"task": "Toy-v0", "reward": "sparse", "runs": "now", "command": "python train.py env=toy"},
+        {"task": "Toy-v0, before", "reward": "sparse", "runs": "before", "command": "-", "in_readme": False},
+    ]
+    (tmp_path / "ledger.json").write_text(json.dumps(entries))
+    readme, seeds = render_results_table(tmp_path), render_seeds_table(tmp_path)
+    assert "| Toy-v0 |" in readme and "Toy-v0, before" not in readme
+    assert "| Toy-v0 |" in seeds and "| Toy-v0, before |" in seeds

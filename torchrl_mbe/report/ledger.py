@@ -2,7 +2,9 @@
 
 ``docs/runs/`` holds the ``summary.json`` of every run the table cites (each with its
 ``record``: commit, machine, versions, command) and ``ledger.json``, one entry per row: the
-task, its kind of reward, the folder of its runs and the command that trains it. The numbers
+task, its kind of reward, the folder of its runs and the command that trains it. An entry
+with ``"in_readme": false`` (runs at earlier settings, kept for comparison) is a row of the
+seed table only. The numbers
 come from the summaries only: a run of ``exploration=egreedy`` counts as e-greedy, one of
 ``exploration=bootstrap`` as Bootstrapped DQN, any other as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
 table, ``... --seeds`` the seed by seed table at the top of docs/results.md and ``... --deepsea``
@@ -51,7 +53,7 @@ SEEDS_HEADER = (
 
 
 def render_results_table(ledger_dir: str | Path) -> str:
-    """The README's results table, one row per ``ledger.json`` entry, from the summaries under ``ledger_dir``.
+    """The README's results table, one row per ``ledger.json`` entry not marked ``"in_readme": false``, from the summaries under ``ledger_dir``.
 
     Examples:
         >>> import json, tempfile
@@ -72,7 +74,7 @@ def render_results_table(ledger_dir: str | Path) -> str:
     """
     ledger_dir = Path(ledger_dir)
     entries = json.loads((ledger_dir / LEDGER_INDEX).read_text())
-    rows = [_row(entry, _summaries(ledger_dir / entry["runs"])) for entry in entries]
+    rows = [_row(entry, _summaries(ledger_dir / entry["runs"])) for entry in entries if entry.get("in_readme", True)]
     return _table(HEADER, rows)
 
 
