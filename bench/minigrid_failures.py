@@ -30,6 +30,8 @@ from torchrl.modules import EGreedyModule
 
 from torchrl_mbe.app.dqn import build_dqn_agent
 from torchrl_mbe.app.environments import make_run_env
+from torchrl_mbe.envs import resolve_env_id
+from torchrl_mbe.envs.registry import SUITE_TASKS
 
 
 @dataclass
@@ -104,8 +106,8 @@ def main() -> None:
     if not config.is_file():
         parser.error(f"{args.run_dir}: no .hydra/config.yaml; expected the run directory of a MiniGrid population")
     cfg = OmegaConf.load(config)
-    if not any(suite in cfg.env.name for suite in ("MiniGrid", "BabyAI")):
-        parser.error(f"{args.run_dir}: a run of {cfg.env.name}; expected a MiniGrid or BabyAI task")
+    if not any(resolve_env_id(cfg.env.name).startswith(prefix) for prefix in SUITE_TASKS):
+        parser.error(f"{args.run_dir}: a run of {cfg.env.name}; expected a task of {', '.join(SUITE_TASKS)}")
     members = [cfg.seed + member for member in range(cfg.population)]
     cfg.population, cfg.processes = 1, 1
     for seed in members:
