@@ -66,7 +66,8 @@ def test_the_report_compares_methods_across_the_tasks_they_ran(tmp_path):
     scores = normalized_scores(runs)
     assert scores["dqn+egreedy"]["Acrobot-v1"].tolist() == [0.0] * 3  # the lowest return of the task
     assert scores["dqn+gaussian"]["MountainCar-v0"] == pytest.approx([100 / 90] * 3)  # above the threshold
-    assert budget_fractions(runs)["dqn+egreedy"]["MountainCar-v0"].tolist() == [1.0] * 3  # never solved
+    fractions = budget_fractions([run.summary for run in runs])
+    assert fractions["dqn+egreedy"]["MountainCar-v0"].tolist() == [1.0] * 3  # never solved
     main([str(tmp_path / "runs"), "--out", str(tmp_path / "report")])
     markdown = (tmp_path / "report" / "results.md").read_text()
     section = markdown.split("## Across tasks")[1]

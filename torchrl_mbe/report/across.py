@@ -13,7 +13,8 @@ Only tasks with a solved threshold and methods that ran on at least two of them 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -22,11 +23,13 @@ from torchrl_mbe.report.runs import Run
 
 __all__ = ["across_tasks_rows", "budget_fractions", "normalized_scores"]
 
+T = TypeVar("T")
+
 
 def normalized_scores(runs: Sequence[Run]) -> dict[str, dict[str, np.ndarray]]:
     """``{method: {task: each seed's normalized score}}`` of the runs with a final evaluation."""
     scores: dict[str, dict[str, list[float]]] = {}
-    for task, task_runs in _by_task(runs).items():
+    for task, task_runs in _by_task(runs, lambda run: run.summary).items():
         low = min(min(run.final_eval_return, *run.returns) for run in task_runs)
         threshold = task_runs[0].solved_threshold
         for run in task_runs:
@@ -38,24 +41,37 @@ def normalized_scores(runs: Sequence[Run]) -> dict[str, dict[str, np.ndarray]]:
     return _compared(scores)
 
 
-def budget_fractions(runs: Sequence[Run]) -> dict[str, dict[str, np.ndarray]]:
-    """``{method: {task: each seed's frames to solved over the task's longest run}}`` (1 for a run that never solved)."""
+def budget_fractions(summaries: Sequence[dict]) -> dict[str, dict[str, np.ndarray]]:
+    """``{method: {task: each seed's frames to solved over the task's longest run}}`` (1 for a run that never solved), from the runs' summaries.
+
+    Examples:
+        >>> from torchrl_mbe.report.across import budget_fractions
+        >>> def summary(env, method, solved_at, frames):
+        ...     return {"env": env, "method": method, "solved_threshold": 1.0, "final_eval_return": 0.0,
+        ...             "solved_at_frames": solved_at, "frames": frames}
+        >>> runs = [summary(env, "dqn+gaussian", 500, 500) for env in ("A", "B")]
+        >>> runs += [summary(env, "dqn+egreedy", None, 1000) for env in ("A", "B")]
+        >>> {method: {task: v.tolist() for task, v in tasks.items()} for method, tasks in budget_fractions(runs).items()}
+        {'dqn+egreedy': {'A': [1.0], 'B': [1.0]}, 'dqn+gaussian': {'A': [0.5], 'B': [0.5]}}
+    """
     fractions: dict[str, dict[str, list[float]]] = {}
-    for task, task_runs in _by_task(runs).items():
-        budget = max(run.summary.get("frames", 0) for run in task_runs) or 1
-        for run in task_runs:
-            solved_at = run.summary.get("solved_at_frames")
-            fractions.setdefault(run.method, {}).setdefault(task, []).append(
+    for task, task_summaries in _by_task(summaries, lambda summary: summary).items():
+        budget = max(summary.get("frames", 0) for summary in task_summaries) or 1
+        for summary in task_summaries:
+            solved_at = summary.get("solved_at_frames")
+            fractions.setdefault(summary["method"], {}).setdefault(task, []).append(
                 1.0 if solved_at is None else solved_at / budget
             )
     return _compared(fractions)
 
 
-def _by_task(runs: Sequence[Run]) -> dict[str, list[Run]]:
-    judged = [r for r in runs if r.solved_threshold is not None and r.final_eval_return is not None]
-    tasks: dict[str, list[Run]] = {}
-    for run in judged:
-        tasks.setdefault(run.env, []).append(run)
+def _by_task(runs: Sequence[T], summary_of: Callable[[T], dict]) -> dict[str, list[T]]:
+    """The runs whose summary has a solved threshold and a final evaluation, by task."""
+    tasks: dict[str, list[T]] = {}
+    for run in runs:
+        summary = summary_of(run)
+        if summary.get("solved_threshold") is not None and summary.get("final_eval_return") is not None:
+            tasks.setdefault(summary["env"], []).append(run)
     return tasks
 
 
@@ -70,7 +86,7 @@ def _compared(values: dict[str, dict[str, list[float]]]) -> dict[str, dict[str, 
 
 def across_tasks_rows(runs: Sequence[Run]) -> tuple[list[list[str]], dict[str, dict[str, np.ndarray]]]:
     """One row per compared method (method, tasks, runs, both IQMs with their intervals), and the normalized scores."""
-    scores, fractions = normalized_scores(runs), budget_fractions(runs)
+    scores, fractions = normalized_scores(runs), budget_fractions([run.summary for run in runs])
     rows = [
         [
             method,

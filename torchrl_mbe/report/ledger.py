@@ -10,6 +10,12 @@ come from the summaries only: a run of ``exploration=egreedy`` counts as e-greed
 table, ``... --seeds`` the seed by seed table at the top of docs/results.md and ``... --deepsea``
 its DeepSea table (``deepsea.json``'s rows, by size); a test fails when a doc's copy differs.
 ``... --deepsea-figure PNG`` draws the DeepSea scaling figure from the same runs.
+
+``explorers.json`` names the explorer by task summary at the top of docs/results.md: its
+rows (each explorer's method and label) and columns (each task and the folders of its
+runs); ``... --explorers`` prints that table and ``... --across`` the explorers compared
+across the tasks every one of them ran, the interquartile mean of their budget to solved
+with its stratified bootstrap 95% interval (:mod:`torchrl_mbe.report.across`).
 """
 
 from __future__ import annotations
@@ -21,20 +27,26 @@ import statistics
 from collections.abc import Sequence
 from pathlib import Path
 
+from torchrl_mbe.report.across import budget_fractions
 from torchrl_mbe.report.figures import plot_deepsea_scaling
+from torchrl_mbe.report.intervals import iqm, stratified_bootstrap_ci
 
 __all__ = [
     "DEEPSEA_INDEX",
+    "EXPLORERS_INDEX",
     "LEDGER_INDEX",
     "main",
+    "render_across_table",
     "render_deepsea_figure",
     "render_deepsea_table",
+    "render_explorers_table",
     "render_results_table",
     "render_seeds_table",
 ]
 
 LEDGER_INDEX = "ledger.json"
 DEEPSEA_INDEX = "deepsea.json"  # DeepSea's rows by size: [{"size": N, "runs": folder}, ...]
+EXPLORERS_INDEX = "explorers.json"  # {"explorers": {name: label}, "tasks": [{"task": column, "runs": [folder, ...]}]}
 EGREEDY = "dqn+egreedy"
 BOOTSTRAP = "dqn+bootstrap"
 BASELINES = (BOOTSTRAP, EGREEDY)  # in the order the seed table lists them, after the default
@@ -46,6 +58,7 @@ HEADER = (
 DEEPSEA_HEADER = (
     "| N | explorer | seeds | solved | episodes to solved, each seed | median [min, max] | commit | command |"
 )
+ACROSS_HEADER = "| explorer | tasks | runs | solved | budget to solved, IQM [95% CI] |"
 SEEDS_HEADER = (
     "| task | explorer | solved | frames to the first solved evaluation: median [each seed; unsolved: its final "
     "greedy success rate] | seconds to solved, median (its seeds at once) | commit | command |"
@@ -107,6 +120,83 @@ def render_seeds_table(ledger_dir: str | Path) -> str:
     for entry in json.loads((ledger_dir / LEDGER_INDEX).read_text()):
         rows += [_seeds_row(entry["task"], runs) for runs in _by_method(_summaries(ledger_dir / entry["runs"]))]
     return _table(SEEDS_HEADER, rows)
+
+
+def render_explorers_table(ledger_dir: str | Path) -> str:
+    """docs/results.md's summary: a row per explorer of ``explorers.json``, a column per task, each cell its seeds solved and median frames to solved.
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_explorers_table
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for method, solved_at in (("gaussian", [12_000, 20_000]), ("egreedy", [None, 60_000])):
+        ...     for seed, frames in enumerate(solved_at):
+        ...         run = ledger / "toy" / method / f"seed{seed}"
+        ...         run.mkdir(parents=True)
+        ...         summary = {"method": f"dqn+{method}", "seed": seed, "solved": frames is not None,
+        ...                    "solved_at_frames": frames}
+        ...         _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> index = {"explorers": {"gaussian": "gaussian (the default)", "egreedy": "egreedy", "knn": "knn"},
+        ...          "tasks": [{"task": "Toy-v0 (sparse)", "runs": ["toy"]}]}
+        >>> _ = (ledger / "explorers.json").write_text(json.dumps(index))
+        >>> print(render_explorers_table(ledger))
+        | explorer | Toy-v0 (sparse) |
+        | --- | --- |
+        | gaussian (the default) | 2/2, 16k |
+        | egreedy | 1/2, 60k |
+        | knn | not run |
+    """
+    index = json.loads((Path(ledger_dir) / EXPLORERS_INDEX).read_text())
+    columns = [(task["task"], _task_summaries(ledger_dir, task)) for task in index["tasks"]]
+    header = "| explorer | " + " | ".join(task for task, _ in columns) + " |"
+    rows = [
+        "| " + " | ".join([label, *(_explorer_cell(summaries, name) for _, summaries in columns)]) + " |"
+        for name, label in index["explorers"].items()
+    ]
+    return _table(header, rows)
+
+
+def render_across_table(ledger_dir: str | Path) -> str:
+    """docs/results.md's comparison across tasks: per explorer of ``explorers.json``, over the tasks every one of them ran,
+    its seeds solved and the interquartile mean of its budget to solved with a stratified bootstrap 95% interval.
+
+    The budget to solved is a run's frames to its first solved evaluation over the task's
+    longest run, 1 if never (:func:`~torchrl_mbe.report.across.budget_fractions`).
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_across_table
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for task in ("A", "B"):
+        ...     for method, solved_at in (("gaussian", 500), ("egreedy", None)):
+        ...         run = ledger / task / method / "seed0"
+        ...         run.mkdir(parents=True)
+        ...         summary = {"env": task, "method": f"dqn+{method}", "seed": 0, "solved": solved_at is not None,
+        ...                    "solved_at_frames": solved_at, "frames": 1000, "solved_threshold": 1.0,
+        ...                    "final_eval_return": 0.0}
+        ...         _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> index = {"explorers": {"gaussian": "gaussian", "egreedy": "egreedy"},
+        ...          "tasks": [{"task": "A", "runs": ["A"]}, {"task": "B", "runs": ["B"]}]}
+        >>> _ = (ledger / "explorers.json").write_text(json.dumps(index))
+        >>> print(render_across_table(ledger).splitlines()[-1])
+        | egreedy | A, B | 2 | 0/2 | 1.00 [1.00, 1.00] |
+    """
+    index = json.loads((Path(ledger_dir) / EXPLORERS_INDEX).read_text())
+    methods = {f"dqn+{name}": label for name, label in index["explorers"].items()}
+    columns = [_task_summaries(ledger_dir, task) for task in index["tasks"]]
+    compared = [s for summaries in columns if methods.keys() <= {s["method"] for s in summaries} for s in summaries]
+    fractions = budget_fractions([s for s in compared if s["method"] in methods])
+    rows = []
+    for method, label in methods.items():
+        if method not in fractions:  # fewer than two tasks ran every explorer
+            continue
+        runs = [s for s in compared if s["method"] == method]
+        point, low, high = stratified_bootstrap_ci(fractions[method], iqm)
+        cells = [label, ", ".join(fractions[method]), str(len(runs)), _solved(runs)]
+        rows.append("| " + " | ".join([*cells, f"{point:.2f} [{low:.2f}, {high:.2f}]"]) + " |")
+    return _table(ACROSS_HEADER, rows)
 
 
 def render_deepsea_table(ledger_dir: str | Path) -> str:
@@ -198,7 +288,7 @@ def _without_seed(command: str) -> str:
 
 def _by_method(summaries: Sequence[dict]) -> list[list[dict]]:
     """The runs of each method, the default's first and then :data:`BASELINES`' order, each method's by seed."""
-    methods = sorted({s["method"] for s in summaries}, key=_listed_after_default)
+    methods = sorted({s["method"] for s in summaries}, key=lambda method: (_listed_after_default(method), method))
     return [sorted((s for s in summaries if s["method"] == method), key=_seed) for method in methods]
 
 
@@ -233,6 +323,18 @@ def _final(summary: dict) -> str:
     """An unsolved run's final greedy success rate, or its return where the task has no goal."""
     rate = summary.get("final_eval_success_rate")
     return f"{rate:.2f}" if rate is not None else f"return {summary['final_eval_return']:.2f}"
+
+
+def _task_summaries(ledger_dir: str | Path, task: dict) -> list[dict]:
+    """The summaries of an ``explorers.json`` column: every run under its folders."""
+    return [summary for folder in task["runs"] for summary in _summaries(Path(ledger_dir) / folder)]
+
+
+def _explorer_cell(summaries: Sequence[dict], explorer: str) -> str:
+    """An explorer's seeds solved out of its runs and, if any solved, the median frames to solved in thousands."""
+    runs = [s for s in summaries if s["method"] == f"dqn+{explorer}"]
+    solved = [s["solved_at_frames"] for s in runs if s["solved"]]
+    return _solved(runs) + (f", {statistics.median(solved) / 1000:,.0f}k" if solved else "")
 
 
 def _summaries(runs_dir: Path) -> list[dict]:
@@ -284,6 +386,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     which = parser.add_mutually_exclusive_group()
     which.add_argument("--seeds", action="store_true", help="docs/results.md's seed by seed table")
     which.add_argument("--deepsea", action="store_true", help="docs/results.md's DeepSea table")
+    which.add_argument("--explorers", action="store_true", help="docs/results.md's explorer by task summary")
+    which.add_argument("--across", action="store_true", help="docs/results.md's explorers compared across tasks")
     which.add_argument("--deepsea-figure", metavar="PNG", help="draw docs/results.md's DeepSea scaling figure to PNG")
     args = parser.parse_args(argv)
     if args.deepsea_figure:
@@ -292,6 +396,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(render_seeds_table(args.ledger_dir))
     elif args.deepsea:
         print(render_deepsea_table(args.ledger_dir))
+    elif args.explorers:
+        print(render_explorers_table(args.ledger_dir))
+    elif args.across:
+        print(render_across_table(args.ledger_dir))
     else:
         print(render_results_table(args.ledger_dir))
 
