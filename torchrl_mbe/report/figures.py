@@ -9,7 +9,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+from matplotlib.ticker import FuncFormatter, MaxNLocator
 
 from torchrl_mbe.envs.registry import EnvBounds
 from torchrl_mbe.report.intervals import performance_profile
@@ -21,6 +21,7 @@ __all__ = [
     "mean_curve",
     "plot_coverage",
     "plot_deepsea_scaling",
+    "plot_explorers_by_task",
     "plot_frames_to_solved",
     "plot_greedy_evaluations",
     "plot_learning_curves",
@@ -158,6 +159,44 @@ def plot_deepsea_scaling(scaling: dict[str, dict[int, list[int | None]]], most_e
     ax.set_title(f"{DEEPSEA}: episodes to solved (dots: seeds, line: median of the seeds that solved)", fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(loc="lower right", fontsize=8)
+    return save_figure(fig, path)
+
+
+def plot_explorers_by_task(
+    frames: dict[str, dict[str, list[int | None]]], explorers: list[str], budgets: dict[str, int], path: Path
+) -> Path:
+    """Each explorer's frames to solved on each task, one panel a task: a dot per seed that solved, a bar at their median.
+
+    ``frames[task][explorer]`` holds each seed's frames to its first solved evaluation
+    (``None``: never solved); ``explorers`` are the rows, top to bottom, and an explorer
+    without runs on a task is left out of its panel.
+    A seed that never solved is a cross at the task's budget (``budgets[task]``, its longest
+    run), so what failed is as visible as what solved.
+    """
+    tasks = list(frames)
+    fig = Figure(figsize=(3.2 * len(tasks), 0.45 * len(explorers) + 1.6), layout="constrained")
+    axes = fig.subplots(1, len(tasks), sharey=True, squeeze=False)[0]
+    for ax, task in zip(axes, tasks):
+        for row, explorer in enumerate(explorers):
+            seeds = frames[task].get(explorer)
+            if seeds is None:
+                ax.text(budgets[task] / 2, row, "not run", color="0.6", ha="center", va="center", fontsize=8)
+                continue
+            solved = [count for count in seeds if count is not None]
+            jitter = np.linspace(-0.15, 0.15, len(seeds))
+            ax.scatter(solved, row + jitter[: len(solved)], color=f"C{row % 10}", s=16, alpha=0.7, zorder=3)
+            unsolved = len(seeds) - len(solved)
+            ax.scatter([budgets[task]] * unsolved, row + jitter[len(solved) :], color="0.3", marker="x", s=20, zorder=3)
+            if solved:
+                ax.plot([np.median(solved)] * 2, [row - 0.3, row + 0.3], color=f"C{row % 10}", linewidth=2)
+        ax.set_xlim(0, budgets[task] * 1.05)
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value / 1000:.0f}k"))
+        ax.set_title(task, fontsize=9)
+        ax.set_xlabel("frames to solved")
+        ax.grid(alpha=0.3, axis="x")
+    axes[0].set_yticks(range(len(explorers)), explorers)
+    axes[0].invert_yaxis()
+    fig.suptitle("Frames to the first solved evaluation (dots: seeds, bar: median; x: never solved)", fontsize=10)
     return save_figure(fig, path)
 
 

@@ -9,7 +9,8 @@ come from the summaries only: a run of ``exploration=egreedy`` counts as e-greed
 ``exploration=bootstrap`` as Bootstrapped DQN, any other as the default explorer. ``python -m torchrl_mbe.report.ledger docs/runs`` prints the README's
 table, ``... --seeds`` the seed by seed table at the top of docs/results.md and ``... --deepsea``
 its DeepSea table (``deepsea.json``'s rows, by size); a test fails when a doc's copy differs.
-``... --deepsea-figure PNG`` draws the DeepSea scaling figure from the same runs.
+``... --deepsea-figure PNG`` draws the DeepSea scaling figure from the same runs, and
+``... --explorers-figure PNG`` the explorer summary's runs.
 
 ``explorers.json`` names the explorer by task summary at the top of docs/results.md: its
 rows (each explorer's method and label) and columns (each task and the folders of its
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from torchrl_mbe.report.across import budget_fractions
-from torchrl_mbe.report.figures import plot_deepsea_scaling
+from torchrl_mbe.report.figures import plot_deepsea_scaling, plot_explorers_by_task
 from torchrl_mbe.report.intervals import iqm, stratified_bootstrap_ci
 
 __all__ = [
@@ -39,6 +40,7 @@ __all__ = [
     "render_across_table",
     "render_deepsea_figure",
     "render_deepsea_table",
+    "render_explorers_figure",
     "render_explorers_table",
     "render_results_table",
     "render_seeds_table",
@@ -155,6 +157,39 @@ def render_explorers_table(ledger_dir: str | Path) -> str:
         for name, label in index["explorers"].items()
     ]
     return _table(header, rows)
+
+
+def render_explorers_figure(ledger_dir: str | Path, path: str | Path) -> Path:
+    """The summary's runs drawn: each explorer's frames to solved on each task of ``explorers.json``, a dot per seed.
+
+    Examples:
+        >>> import json, tempfile
+        >>> from pathlib import Path
+        >>> from torchrl_mbe.report.ledger import render_explorers_figure
+        >>> ledger = Path(tempfile.mkdtemp())
+        >>> for seed, solved_at in enumerate([12_000, None]):
+        ...     run = ledger / "toy" / f"seed{seed}"
+        ...     run.mkdir(parents=True)
+        ...     summary = {"method": "dqn+gaussian", "seed": seed, "solved": solved_at is not None,
+        ...                "solved_at_frames": solved_at, "frames": solved_at or 50_000}
+        ...     _ = (run / "summary.json").write_text(json.dumps(summary))
+        >>> index = {"explorers": {"gaussian": "gaussian"}, "tasks": [{"task": "Toy-v0", "runs": ["toy"]}]}
+        >>> _ = (ledger / "explorers.json").write_text(json.dumps(index))
+        >>> render_explorers_figure(ledger, ledger / "explorers.png").name
+        'explorers.png'
+    """
+    index = json.loads((Path(ledger_dir) / EXPLORERS_INDEX).read_text())
+    frames: dict[str, dict[str, list[int | None]]] = {}
+    budgets = {}
+    for task in index["tasks"]:
+        summaries = _task_summaries(ledger_dir, task)
+        budgets[task["task"]] = max(s["frames"] for s in summaries)
+        frames[task["task"]] = {
+            label: [s["solved_at_frames"] if s["solved"] else None for s in runs]
+            for name, label in index["explorers"].items()
+            if (runs := sorted((s for s in summaries if s["method"] == f"dqn+{name}"), key=_seed))
+        }
+    return plot_explorers_by_task(frames, list(index["explorers"].values()), budgets, Path(path))
 
 
 def render_across_table(ledger_dir: str | Path) -> str:
@@ -389,9 +424,12 @@ def main(argv: Sequence[str] | None = None) -> None:
     which.add_argument("--explorers", action="store_true", help="docs/results.md's explorer by task summary")
     which.add_argument("--across", action="store_true", help="docs/results.md's explorers compared across tasks")
     which.add_argument("--deepsea-figure", metavar="PNG", help="draw docs/results.md's DeepSea scaling figure to PNG")
+    which.add_argument("--explorers-figure", metavar="PNG", help="draw the explorer by task summary's runs to PNG")
     args = parser.parse_args(argv)
     if args.deepsea_figure:
         print(f"wrote {render_deepsea_figure(args.ledger_dir, args.deepsea_figure)}")
+    elif args.explorers_figure:
+        print(f"wrote {render_explorers_figure(args.ledger_dir, args.explorers_figure)}")
     elif args.seeds:
         print(render_seeds_table(args.ledger_dir))
     elif args.deepsea:
