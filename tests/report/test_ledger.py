@@ -8,14 +8,27 @@ from pathlib import Path
 
 import pytest
 
-from torchrl_mbe.report.ledger import render_deepsea_table, render_results_table, render_seeds_table
+from torchrl_mbe.report.ledger import (
+    render_across_table,
+    render_deepsea_table,
+    render_explorers_table,
+    render_results_table,
+    render_seeds_table,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 LEDGER = REPO / "docs" / "runs"
 PROCESS_TALK = re.compile(r"worktree|\bsession\b|\bof mine\b|machine time|\bthe issue\b|issue's", re.IGNORECASE)
 RENDERED = [  # (doc, the table's name in its markers, what renders it, the command that prints it)
     ("README.md", "results table", render_results_table, "python -m torchrl_mbe.report.ledger docs/runs"),
+    (
+        "docs/results.md",
+        "explorers table",
+        render_explorers_table,
+        "python -m torchrl_mbe.report.ledger docs/runs --explorers",
+    ),
     ("docs/results.md", "seeds table", render_seeds_table, "python -m torchrl_mbe.report.ledger docs/runs --seeds"),
+    ("docs/results.md", "across table", render_across_table, "python -m torchrl_mbe.report.ledger docs/runs --across"),
     (
         "docs/results.md",
         "deepsea table",
@@ -32,6 +45,16 @@ def test_each_published_table_is_the_one_the_ledger_renders(doc, table, render, 
     start = text.index(opening) + len(opening)
     end = text.index("<!-- /ledger -->", start)
     assert text[start:end].strip() == render(LEDGER), f"{doc}'s {table} differs from the ledger; paste `{command}`"
+
+
+@pytest.mark.parametrize("doc", sorted({row[0] for row in RENDERED}))
+def test_every_table_of_the_results_pages_is_rendered_from_the_ledger(doc):
+    typed, rendered = [], False
+    for number, line in enumerate((REPO / doc).read_text().splitlines(), start=1):
+        rendered = line.startswith("<!-- ledger:") or (rendered and not line.startswith("<!-- /ledger -->"))
+        if line.startswith("|") and not rendered:
+            typed.append(number)
+    assert not typed, f"{doc}: a table typed by hand at lines {typed[:5]}; render it from docs/runs"
 
 
 def test_every_ledger_run_records_its_commit_machine_and_command():
