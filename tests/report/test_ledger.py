@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 
 from torchrl_mbe.report.ledger import (
+    main,
     render_across_table,
     render_deepsea_table,
     render_explorers_table,
@@ -90,3 +91,13 @@ def test_runs_at_earlier_settings_stay_in_the_seed_table_and_out_of_the_readme(t
     readme, seeds = render_results_table(tmp_path), render_seeds_table(tmp_path)
     assert "| Toy-v0 |" in readme and "Toy-v0, before" not in readme
     assert "| Toy-v0 |" in seeds and "| Toy-v0, before |" in seeds
+
+
+@pytest.mark.parametrize(
+    ("flag", "index"), [([], "ledger.json"), (["--explorers"], "explorers.json"), (["--deepsea"], "deepsea.json")]
+)
+def test_a_folder_without_the_ledgers_index_is_one_line_naming_it(tmp_path, capsys, flag, index):
+    with pytest.raises(SystemExit):
+        main([str(tmp_path), *flag])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert f"{tmp_path / index} is missing" in error

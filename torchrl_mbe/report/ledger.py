@@ -426,6 +426,9 @@ def main(argv: Sequence[str] | None = None) -> None:
     which.add_argument("--deepsea-figure", metavar="PNG", help="draw docs/results.md's DeepSea scaling figure to PNG")
     which.add_argument("--explorers-figure", metavar="PNG", help="draw the explorer by task summary's runs to PNG")
     args = parser.parse_args(argv)
+    index = Path(args.ledger_dir) / _index_read_by(args)
+    if not index.is_file():
+        parser.error(f"{index} is missing: a ledger folder holds {LEDGER_INDEX}, {EXPLORERS_INDEX} and {DEEPSEA_INDEX}")
     if args.deepsea_figure:
         print(f"wrote {render_deepsea_figure(args.ledger_dir, args.deepsea_figure)}")
     elif args.explorers_figure:
@@ -440,6 +443,15 @@ def main(argv: Sequence[str] | None = None) -> None:
         print(render_across_table(args.ledger_dir))
     else:
         print(render_results_table(args.ledger_dir))
+
+
+def _index_read_by(args: argparse.Namespace) -> str:
+    """The index file the chosen table or figure is rendered from."""
+    if args.deepsea or args.deepsea_figure:
+        return DEEPSEA_INDEX
+    if args.explorers or args.across or args.explorers_figure:
+        return EXPLORERS_INDEX
+    return LEDGER_INDEX
 
 
 if __name__ == "__main__":
