@@ -21,7 +21,7 @@ import numpy as np
 from torchrl_mbe.report.intervals import iqm, stratified_bootstrap_ci
 from torchrl_mbe.report.runs import Run
 
-__all__ = ["across_tasks_rows", "budget_fractions", "normalized_scores"]
+__all__ = ["across_tasks_rows", "budget_fractions", "iqm_interval", "normalized_scores"]
 
 T = TypeVar("T")
 
@@ -92,14 +92,22 @@ def across_tasks_rows(runs: Sequence[Run]) -> tuple[list[list[str]], dict[str, d
             method,
             ", ".join(per_task),
             str(sum(len(seeds) for seeds in per_task.values())),
-            _interval(per_task),
-            _interval(fractions[method]),
+            iqm_interval(per_task),
+            iqm_interval(fractions[method]),
         ]
         for method, per_task in scores.items()
     ]
     return rows, scores
 
 
-def _interval(per_task: dict[str, np.ndarray]) -> str:
+def iqm_interval(per_task: dict[str, np.ndarray]) -> str:
+    """The interquartile mean of the values pooled over tasks and its stratified bootstrap 95% interval, as ``IQM [low, high]``.
+
+    Examples:
+        >>> import numpy as np
+        >>> from torchrl_mbe.report.across import iqm_interval
+        >>> iqm_interval({"A": np.array([0.5, 0.5]), "B": np.array([0.5])})
+        '0.50 [0.50, 0.50]'
+    """
     point, low, high = stratified_bootstrap_ci(per_task, iqm)
     return f"{point:.2f} [{low:.2f}, {high:.2f}]"

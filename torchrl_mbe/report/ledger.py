@@ -28,9 +28,8 @@ import statistics
 from collections.abc import Sequence
 from pathlib import Path
 
-from torchrl_mbe.report.across import budget_fractions
+from torchrl_mbe.report.across import budget_fractions, iqm_interval
 from torchrl_mbe.report.figures import plot_deepsea_scaling, plot_explorers_by_task
-from torchrl_mbe.report.intervals import iqm, stratified_bootstrap_ci
 
 __all__ = [
     "DEEPSEA_INDEX",
@@ -187,7 +186,7 @@ def render_explorers_figure(ledger_dir: str | Path, path: str | Path) -> Path:
         frames[task["task"]] = {
             label: [s["solved_at_frames"] if s["solved"] else None for s in runs]
             for name, label in index["explorers"].items()
-            if (runs := sorted((s for s in summaries if s["method"] == f"dqn+{name}"), key=_seed))
+            if (runs := _explorer_runs(summaries, name))
         }
     return plot_explorers_by_task(frames, list(index["explorers"].values()), budgets, Path(path))
 
@@ -219,18 +218,18 @@ def render_across_table(ledger_dir: str | Path) -> str:
         | egreedy | A, B | 2 | 0/2 | 1.00 [1.00, 1.00] |
     """
     index = json.loads((Path(ledger_dir) / EXPLORERS_INDEX).read_text())
-    methods = {f"dqn+{name}": label for name, label in index["explorers"].items()}
+    methods = {f"dqn+{name}" for name in index["explorers"]}
     columns = [_task_summaries(ledger_dir, task) for task in index["tasks"]]
-    compared = [s for summaries in columns if methods.keys() <= {s["method"] for s in summaries} for s in summaries]
+    compared = [s for summaries in columns if methods <= {s["method"] for s in summaries} for s in summaries]
     fractions = budget_fractions([s for s in compared if s["method"] in methods])
     rows = []
-    for method, label in methods.items():
-        if method not in fractions:  # fewer than two tasks ran every explorer
+    for name, label in index["explorers"].items():
+        per_task = fractions.get(f"dqn+{name}")
+        if per_task is None:  # fewer than two tasks ran every explorer
             continue
-        runs = [s for s in compared if s["method"] == method]
-        point, low, high = stratified_bootstrap_ci(fractions[method], iqm)
-        cells = [label, ", ".join(fractions[method]), str(len(runs)), _solved(runs)]
-        rows.append("| " + " | ".join([*cells, f"{point:.2f} [{low:.2f}, {high:.2f}]"]) + " |")
+        runs = _explorer_runs(compared, name)
+        cells = [label, ", ".join(per_task), str(len(runs)), _solved(runs), iqm_interval(per_task)]
+        rows.append("| " + " | ".join(cells) + " |")
     return _table(ACROSS_HEADER, rows)
 
 
@@ -365,9 +364,14 @@ def _task_summaries(ledger_dir: str | Path, task: dict) -> list[dict]:
     return [summary for folder in task["runs"] for summary in _summaries(Path(ledger_dir) / folder)]
 
 
+def _explorer_runs(summaries: Sequence[dict], explorer: str) -> list[dict]:
+    """The runs of ``explorer`` (a name of ``explorers.json``) among ``summaries``, by seed."""
+    return sorted((s for s in summaries if s["method"] == f"dqn+{explorer}"), key=_seed)
+
+
 def _explorer_cell(summaries: Sequence[dict], explorer: str) -> str:
     """An explorer's seeds solved out of its runs and, if any solved, the median frames to solved in thousands."""
-    runs = [s for s in summaries if s["method"] == f"dqn+{explorer}"]
+    runs = _explorer_runs(summaries, explorer)
     solved = [s["solved_at_frames"] for s in runs if s["solved"]]
     return _solved(runs) + (f", {statistics.median(solved) / 1000:,.0f}k" if solved else "")
 
