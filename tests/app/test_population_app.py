@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+from functools import partial
 
 import pytest
 import torch
@@ -12,11 +13,13 @@ from torchrl.collectors import Collector
 
 from torchrl_mbe.app import ConfigError, check_config, train
 from torchrl_mbe.app.checkpoints import load_safely
-from torchrl_mbe.app.dqn import build_dqn_agent, make_q_actor
+from torchrl_mbe.app.dqn import DQNTraining, build_dqn_agent, make_q_actor
 from torchrl_mbe.app.environments import make_run_env
 from torchrl_mbe.app.explorers import RNDExplorer, explorer_of, logged_columns
 from torchrl_mbe.app.identity import config_id
+from torchrl_mbe.app.population import StopOnInterrupt, open_population
 from torchrl_mbe.app.replay import PopulationReplayBuffer, ReplayTransitions
+from torchrl_mbe.app.rollout import CollectorState, EnvState
 from torchrl_mbe.modules import Standardize
 from torchrl_mbe.report.runs import load_runs
 from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT, SUMMARY, table_file, tables
@@ -227,3 +230,101 @@ def test_the_parts_of_a_population_record_the_command_that_launched_them(tmp_pat
     for seed in (0, 1):
         record = json.loads((tmp_path / "run" / f"seed{seed}" / SUMMARY).read_text())["record"]
         assert record["command"].startswith("python train.py population=2 processes=2")
+
+
+@pytest.mark.parametrize(
+    ("env", "exploration"),
+    [("mountaincar", "gaussian"), ("mountaincar", "rnd"), ("mountaincar", "bootstrap"), ("lunarlander", "noisy")],
+)
+def test_a_stopped_member_leaves_the_batch_and_the_others_go_on_from_their_own_state(
+    env, exploration, tmp_path, compose_config
+):
+    starts = ("algo.learning_starts=32", "dynamics.learning_starts=32", "algo.n_steps=3")
+    cfg = compose_config(
+        f"env={env}",
+        "population=3",
+        f"exploration={exploration}",
+        "env.num_envs=2",
+        "eval.episodes=2",
+        "eval.final_episodes=0",
+        *starts,
+        *SMALL,
+    )
+    torch.manual_seed(0)
+    training = DQNTraining(cfg, 3)
+    population = open_population(cfg, tmp_path, training.agent)
+    for name, part in training.parts().items():
+        population.keep(name, part)
+    for _ in range(3):  # every part holds state: windows, replay rows, Adam's moments, an episode under way
+        batch = next(training.batches)
+        stored = training.transitions(batch)
+        if stored is not None:
+            training.replay_buffer.extend(stored)
+        population.record(batch)
+        training.agent.learn(batch, training.replay_buffer, population.frames)
+    population.runs[1].progress.episodes = cfg.train.episodes  # member 1 spent its budget
+    with StopOnInterrupt() as interrupt:
+        assert population.training(interrupt) and population.holds_stopped_members()
+    copies = training.collector.env.base_env.copies() if env == "lunarlander" else None
+    stayed = population.leave_batch(partial(DQNTraining, cfg))  # the parts left behind are untouched
+    assert population.in_batch == [0, 2] and stayed.collector.env.batch_size == (2, 2)
+    if copies is not None:  # gymnasium copies go on mid-episode: members 0 and 2 of each row
+        assert stayed.collector.env.base_env.copies() == [copies[index] for index in (0, 2, 3, 5)]
+    torch.manual_seed(1)
+    sample = training.replay_buffer.sample(16).exclude("index")
+    before, after = _what_members_see(training, sample), _what_members_see(stayed, sample[:, [0, 2]])
+    assert before.keys() == after.keys()
+    for name, seen in after.items():
+        torch.testing.assert_close(seen, before[name][:, [0, 2]], rtol=0, atol=0, msg=name)
+
+
+def _what_members_see(training: DQNTraining, sample: TensorDict) -> dict[str, torch.Tensor]:
+    """Each member's view (member dimension 1): its replay rows, the step it goes on from, its greedy Q-values, and one Q step's losses and Q-values."""
+    agent = training.agent
+    env_state = EnvState(training.collector.env).state_dict()  # a torch-batched env's: (num_envs, M, ...)
+    carrier = CollectorState(training.collector).handover_state()["carrier"]
+    observation = TensorDict(observation=carrier["observation"].clone(), batch_size=carrier["observation"].shape[:-1])
+    views = {
+        **{f"env {name}": state for name, state in env_state.items() if isinstance(state, torch.Tensor)},
+        "replay rows": training.replay_buffer[: len(training.replay_buffer)]["observation"],
+        "step count": carrier["step_count"],
+        "q-values": agent.actor(observation.clone())["action_value"],
+    }
+    if hasattr(agent.explorer.policy, "planner"):
+        views["novelty scores"] = agent.explorer.policy.planner.action_scores(observation["observation"])
+    losses = agent.q_step(sample.clone())  # the loss reads the target network; the step, Adam's moments
+    views["q loss"] = torch.tensor(losses).view(1, -1)
+    views["q-values after a step"] = agent.actor(observation.clone())["action_value"]
+    return {name: view.detach() for name, view in views.items()}
+
+
+# Interrupted before the first member leaves the batch and after it (the test checks that it leaves between the two).
+@pytest.mark.parametrize("interrupted_at", [320, 544])
+def test_a_population_whose_members_leave_the_batch_resumes_where_it_stopped(interrupted_at, tmp_path, compose_config):
+    overrides = (
+        "env=cartpole",
+        "population=3",
+        "env.num_envs=2",
+        "train.episodes=40",  # the members' episodes differ in length: they stop one after another
+        "train.max_frames=null",
+        "eval.episodes=0",
+        "eval.final_episodes=0",
+        "train.checkpoint_every_frames=128",
+        *SMALL,
+    )
+    whole = train(compose_config(*overrides), tmp_path / "whole")
+    stopped_at = [member["frames"] for member in whole["members"]]
+    first, second, _ = sorted(stopped_at)
+    assert 320 < first < 544 < second  # one member leaves before the interruption at 544 frames, one after
+    train(compose_config(*overrides, f"train.max_frames={interrupted_at}"), tmp_path / "resumed")
+    resumed = train(compose_config(*overrides, "resume=true"), tmp_path / "resumed")
+    assert [member["frames"] for member in resumed["members"]] == stopped_at
+    for seed in (0, 1, 2):
+        episodes = [
+            (tmp_path / run / f"seed{seed}" / table_file("episodes")).read_text() for run in ("whole", "resumed")
+        ]
+        columns = [[line.split(",")[:5] for line in text.splitlines()] for text in episodes]
+        assert columns[0] == columns[1]  # the same episodes, wall times aside
+    checkpoints = [load_safely(tmp_path / run / CHECKPOINT) for run in ("whole", "resumed")]
+    assert checkpoints[0]["in_batch"] == checkpoints[1]["in_batch"] == [0]
+    torch.testing.assert_close(checkpoints[1]["agent"], checkpoints[0]["agent"], rtol=0, atol=0)

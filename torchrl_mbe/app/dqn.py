@@ -11,6 +11,7 @@ bookkeeping (:mod:`torchrl_mbe.app.population`; a single run is a population of 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import torch
@@ -19,15 +20,16 @@ from tensordict import TensorDictBase
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorSpec
-from torchrl.envs import TransformedEnv
+from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QEnsemble, explorer_of
+from torchrl_mbe.app.members import select_members
 from torchrl_mbe.app.observation import observation_kind
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
-from torchrl_mbe.app.population import StopOnInterrupt, open_population
+from torchrl_mbe.app.population import Resumable, StopOnInterrupt, open_population, start_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
@@ -44,40 +46,67 @@ def train_dqn(cfg: DictConfig, run_dir: Path) -> dict:
     """Trains DQN with the configured exploration (``population=M`` agents together) and returns the summary.
 
     A single run is a population of one: the same loop, without a member dimension.
+    When members stop, the parts are built again for the members still training,
+    which go on from their own state (:meth:`~torchrl_mbe.app.population.Population.leave_batch`).
     """
-    size = cfg.population  # 1 for a single run
-    env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed)  # (num_envs,), or (num_envs, M)
-    agent = build_dqn_agent(cfg, env)
-    replay_buffer = make_replay_buffer(cfg.buffer, cfg.device, member_dimension(cfg))
-    # Built before a resume restores torch's generator: checking the policy draws from it.
-    collector = Collector(
-        env, agent.explorer.policy, frames_per_batch=cfg.collector.frames_per_batch * size, total_frames=-1
-    )
-    population = open_population(cfg, run_dir, agent)
-    population.keep("replay_buffer", ReplayState(replay_buffer))
-    transitions = ReplayTransitions(
-        cfg.algo.n_steps,
-        cfg.algo.gamma,
-        intrinsic_coef=agent.explorer.intrinsic_coef,
-        num_members=member_dimension(cfg),
-        extra_keys=agent.explorer.stored_keys,
-    )
-    population.keep("transitions", transitions)  # the frames its n-step windows hold back
-    population.keep("collector", CollectorState(collector))  # the env and the step it goes on from
-    batches = iter(collector)
+    start = start_population(cfg, run_dir)  # the members a resumed checkpoint's batch keeps, or all
+    training = DQNTraining(cfg, start.num_members)
+    population = open_population(cfg, run_dir, training.agent, start)
+    for name, part in training.parts().items():
+        population.keep(name, part)
     with StopOnInterrupt() as interrupt:
         while population.training(interrupt):
-            batch = next(batches)  # (num_envs, time), or (num_envs, M, time)
-            stored = transitions(batch)
+            if population.holds_stopped_members():
+                stopped_batch, training = training, population.leave_batch(partial(DQNTraining, cfg))
+                stopped_batch.collector.shutdown()
+            batch = next(training.batches)  # (num_envs, time), or (num_envs, M, time)
+            stored = training.transitions(batch)
             if stored is not None:  # None while the first n-step windows fill
-                replay_buffer.extend(stored)
-            population.record(batch, eps=agent.eps)
-            population.record_updates(agent.learn(batch, replay_buffer, population.frames))
-            population.evaluate_and_checkpoint_if_due(batch.numel() // size)
+                training.replay_buffer.extend(stored)
+            population.record(batch, eps=training.agent.eps)
+            population.record_updates(training.agent.learn(batch, training.replay_buffer, population.frames))
+            population.evaluate_and_checkpoint_if_due(batch.numel() // population.width)
     try:
         return population.finish(interrupt)  # its checkpoint keeps the collector's state
     finally:
-        collector.shutdown()
+        training.collector.shutdown()
+
+
+class DQNTraining:
+    """What the loop trains with, for the members its batch holds: the agent, the replay buffer, the n-step transitions, the collector.
+
+    Args:
+        cfg (DictConfig): the run's config.
+        num_members (int, optional): the members the batch holds (``None`` for a single run).
+    """
+
+    def __init__(self, cfg: DictConfig, num_members: int | None) -> None:
+        env = make_run_env(cfg, num_envs=cfg.env.num_envs, seed=cfg.seed, num_members=num_members)
+        self.agent = build_dqn_agent(cfg, env)
+        self.replay_buffer = make_replay_buffer(cfg.buffer, cfg.device, num_members)
+        self.transitions = ReplayTransitions(
+            cfg.algo.n_steps,
+            cfg.algo.gamma,
+            intrinsic_coef=self.agent.explorer.intrinsic_coef,
+            num_members=num_members,
+            extra_keys=self.agent.explorer.stored_keys,
+        )
+        # Built before a resume restores torch's generator: checking the policy draws from it.
+        self.collector = Collector(
+            env,
+            self.agent.explorer.policy,
+            frames_per_batch=cfg.collector.frames_per_batch * (num_members or 1),
+            total_frames=-1,
+        )
+        self.batches = iter(self.collector)
+
+    def parts(self) -> dict[str, Resumable]:
+        """The parts whose state checkpoints keep beside the agent's."""
+        return {
+            "replay_buffer": ReplayState(self.replay_buffer),
+            "transitions": self.transitions,  # the frames its n-step windows hold back
+            "collector": CollectorState(self.collector),  # the env and the step it goes on from
+        }
 
 
 @dataclass(frozen=True)
@@ -91,10 +120,11 @@ class DQNSettings:
     lr_decay_frames: int | None
     lr_end_factor: float
     log_every_updates: int  # 0: no updates-table rows
-    population: int  # agents learning together (1: a single run)
+    population: int  # agents learning together in the batch (1: a single run)
 
     @classmethod
-    def from_config(cls, cfg: DictConfig) -> DQNSettings:
+    def from_config(cls, cfg: DictConfig, num_members: int | None = None) -> DQNSettings:
+        """The settings of ``cfg`` for an agent of ``num_members`` members (``None``: a single agent)."""
         algo = cfg.algo
         return cls(
             algo.learning_starts,
@@ -104,7 +134,7 @@ class DQNSettings:
             algo.lr_decay_frames,
             algo.lr_end_factor,
             cfg.logger.log_every_updates,
-            cfg.population,
+            num_members or 1,
         )
 
 
@@ -213,6 +243,14 @@ class DQNAgent:
             "explorer": self.explorer.state_dict(),
         }
 
+    def select_members(self, state: dict, index: list[int], num_members: int) -> dict:
+        """A population agent's :meth:`state_dict` with only the members ``index``, for this agent (built for ``len(index)``).
+
+        Each tensor is cut where this agent's own differs in shape; the optimizers' moments,
+        which a new optimizer does not hold yet, along their parameters' member dimension 0.
+        """
+        return select_members(state, index, num_members, like=self.state_dict())
+
     def load_state_dict(self, state: dict) -> None:
         self.explorer.policy.load_state_dict(state["policy"])
         self.q_loss.target_value_network_params.data.update_(state["target_network"])
@@ -242,7 +280,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         >>> type(agent.explorer).__name__, env.rollout(3)["next", "intrinsic_reward"].shape
         ('RNDExplorer', torch.Size([4, 3, 1]))
     """
-    algo, device, num_members = cfg.algo, torch.device(cfg.device), member_dimension(cfg)
+    algo, device, num_members = cfg.algo, torch.device(cfg.device), member_dimension(cfg, env)
     explorer_class = explorer_of(cfg.exploration)
     action_spec = env.action_spec_unbatched.to(device)
     observation_size = env.observation_spec_unbatched["observation"].shape[-1]
@@ -277,13 +315,19 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         heads_per_member=None if ensemble is None else ensemble.num_heads,
     )
     return DQNAgent(
-        actor, explorer, q_loss, make_target_updater(algo, q_loss), q_step, q_input_norm, DQNSettings.from_config(cfg)
+        actor,
+        explorer,
+        q_loss,
+        make_target_updater(algo, q_loss),
+        q_step,
+        q_input_norm,
+        DQNSettings.from_config(cfg, num_members),
     )
 
 
-def member_dimension(cfg: DictConfig) -> int | None:
-    """The population's size M with ``population=M > 1``; ``None`` for a single agent (``population=1``)."""
-    return cfg.population if cfg.population > 1 else None
+def member_dimension(cfg: DictConfig, env: EnvBase) -> int | None:
+    """The members ``env`` holds with ``population=M > 1`` (its batch's last size: M, fewer once members left); ``None`` for a single agent."""
+    return env.batch_size[-1] if cfg.population > 1 else None
 
 
 def make_q_actor(

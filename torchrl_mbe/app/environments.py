@@ -11,12 +11,13 @@ from torchrl_mbe.envs import make_env
 __all__ = ["config_observation_spec", "env_options", "make_run_env"]
 
 
-def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int) -> EnvBase:
+def make_run_env(cfg: DictConfig, *, num_envs: int, seed: int, num_members: int | None = None) -> EnvBase:
     """The configured env (``cfg.env``, on ``cfg.device``), ``num_envs`` copies seeded from ``seed``.
 
-    With ``population=M > 1`` the batch is ``(num_envs, M)``: ``num_envs`` copies per member.
+    With ``population=M > 1`` the batch is ``(num_envs, M)``: ``num_envs`` copies per member
+    (``(num_envs, num_members)`` for a batch that holds ``num_members`` of them).
     """
-    batch = num_envs if cfg.population == 1 else (num_envs, cfg.population)
+    batch = num_envs if cfg.population == 1 else (num_envs, num_members or cfg.population)
     return make_env(cfg.env.name, num_envs=batch, seed=seed, device=cfg.device, **env_options(cfg.env))
 
 

@@ -13,6 +13,7 @@ from torchrl._torchrl import MinSegmentTreeFp32, SumSegmentTreeFp32  # private: 
 from torchrl.data import LazyTensorStorage, ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorDictReplayBuffer
 from torchrl.envs import MultiStepTransform
 
+from torchrl_mbe.app.members import select_members
 from torchrl_mbe.app.settings import ConfigError
 from torchrl_mbe.rundir import CHECKPOINT
 
@@ -142,6 +143,11 @@ class ReplayState:
             sampler[name] = tree
         self.buffer.load_state_dict(state)
 
+    @staticmethod
+    def select_members(state: dict, index: list[int], num_members: int) -> dict:
+        """A population buffer's state with only the members ``index`` (storage columns, ``[capacity, M]``)."""
+        return select_members(state, index, num_members, dim=1)
+
 
 class ReplayTransitions:
     """Turns collected frames into the transitions the losses read, and nothing more.
@@ -227,6 +233,17 @@ class ReplayTransitions:
     def load_state_dict(self, state: dict) -> None:
         if state["held_back"] is not None:
             self.multistep._buffer = TensorDict(state["held_back"], batch_size=state["batch_size"])
+
+    @staticmethod
+    def select_members(state: dict, index: list[int], num_members: int) -> dict:
+        """The held-back frames of the members ``index`` only (``(envs, M, n)``: the member is dimension 1)."""
+        if state["held_back"] is None:
+            return state
+        num_envs, _, held = state["batch_size"]
+        return {
+            "held_back": select_members(state["held_back"], index, num_members, dim=1),
+            "batch_size": [num_envs, len(index), held],
+        }
 
 
 def flatten_frames(frames: TensorDictBase, num_members: int | None = None) -> TensorDictBase:

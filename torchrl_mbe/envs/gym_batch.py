@@ -72,6 +72,29 @@ class GymBatchEnv(EnvBase):
             setattr(self, spec, getattr(reference, spec).expand(*batch_size).to(self.device))
         self._observations = [None] * len(self.envs)  # each copy's last gymnasium observation
 
+    def copies(self) -> list[tuple[Any, Any]]:
+        """Each copy's gymnasium env and last observation, in row-major order: what :meth:`adopt` takes."""
+        return list(zip(self.envs, self._observations, strict=True))
+
+    def adopt(self, copies: list[tuple[Any, Any]]) -> None:
+        """Goes on with ``copies`` (another batch's, from :meth:`copies`) in place of its own, mid-episode.
+
+        A population whose members left the batch keeps the others' episodes running this way.
+
+        Examples:
+            >>> from torchrl_mbe.envs import GymBatchEnv
+            >>> env = GymBatchEnv("CartPole-v1", (2, 3))
+            >>> _ = env.set_seed(0)
+            >>> member_1 = [copy for index, copy in enumerate(env.copies()) if index % 3 == 1]  # column 1's copies
+            >>> kept = GymBatchEnv("CartPole-v1", (2, 1))
+            >>> kept.adopt(member_1)
+            >>> kept.copies() == member_1
+            True
+        """
+        if len(copies) != len(self.envs):
+            raise ValueError(f"adopt expects {len(self.envs)} copies, got {len(copies)}.")
+        self.envs, self._observations = (list(part) for part in zip(*copies, strict=True))
+
     def _set_seed(self, seed: int | None) -> None:
         """Not used: :meth:`set_seed` seeds each copy with a seed of its own."""
 
