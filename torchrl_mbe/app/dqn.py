@@ -4,7 +4,9 @@
 policy, store its transitions (n-step, through TorchRL's ``MultiStepTransform``),
 record it, let the agent learn from the new frames (the explorer's own updates,
 then the Q steps with their target update and eps annealing), then the runs'
-bookkeeping (:mod:`torchrl_mbe.app.population`; a single run is a population of one). What differs between explorers lives in
+bookkeeping (:mod:`torchrl_mbe.app.population`; a single run is a population of one).
+:class:`DQNTraining` holds what the loop trains with, built for the members its batch
+holds, and built again when members stop. What differs between explorers lives in
 :mod:`torchrl_mbe.app.explorers`; the loop calls the explorer's hooks.
 """
 
