@@ -204,9 +204,10 @@ class Population:
             self.kept[name] = part
             part.load_state_dict(part.select_members(states[name], index, width))
         log.info(
-            "Stopped members left the batch; %d of %d train on (seeds %s).",
+            "Stopped members left the batch; %d of %d train on (seed%s %s).",
             self.width,
             self.size,
+            "s" * (self.width > 1),
             ", ".join(str(self.cfg.seed + member) for member in self.in_batch),
         )
         return training
