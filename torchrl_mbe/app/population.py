@@ -229,13 +229,11 @@ class Population:
     def record_updates(self, rows: list[dict]) -> None:
         """Logs each training member's part of the agent's update rows (a population's row holds a list per value)."""
         for member, run in self.active():
+            column = self.column(member)
             record_updates(
                 run,
                 [
-                    {
-                        key: value[self.column(member)] if isinstance(value, list) else value
-                        for key, value in row.items()
-                    }
+                    {key: value[column] if isinstance(value, list) else value for key, value in row.items()}
                     for row in rows
                 ],
             )
