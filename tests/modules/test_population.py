@@ -12,13 +12,14 @@ from torchrl.data import OneHot
 from torchrl.envs.transforms import RNDTransform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import MLP, QValueActor
+from torchrl.modules import MLP, MultiAgentMLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, RNDLoss
 
 from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
 from torchrl_mbe.envs.transforms import PopulationRNDTransform
 from torchrl_mbe.modules.networks import (
+    MembersMLP,
     make_members_mlp,
     make_per_action_mlp,
     make_population_q_actor,
@@ -164,6 +165,39 @@ def test_a_population_of_one_starts_from_the_single_networks_weights():
     stacked = population.module[0].params.flatten_keys(".")
     for name, value in single.state_dict().items():
         assert torch.equal(stacked[name][0], value), name
+
+
+@pytest.mark.parametrize("num_members", [1, 3])
+@pytest.mark.parametrize("batch_shape", [(), (5,), (4, 6)])
+def test_the_members_batched_products_compute_multiagentmlps_values_and_gradients_to_the_bit(num_members, batch_shape):
+    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members)
+    vmapped = MultiAgentMLP(
+        n_agent_inputs=OBSERVATION_SIZE,
+        n_agent_outputs=3,
+        n_agents=num_members,
+        centralized=False,
+        share_params=False,
+        num_cells=NUM_CELLS,
+        activation_class=torch.nn.ReLU,
+    )
+    vmapped.load_state_dict(network.state_dict())
+    states = torch.randn(*batch_shape, num_members, OBSERVATION_SIZE)
+    values = network(states)
+    assert network.multiplies_stacked and torch.equal(values, vmapped(states))
+    values.square().sum().backward()
+    vmapped(states).square().sum().backward()
+    for (name, parameter), expected in zip(network.named_parameters(), vmapped.parameters(), strict=True):
+        assert torch.equal(parameter.grad, expected.grad), name
+
+
+def test_noisy_members_keep_multiagentmlps_vmapped_call():
+    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, 2, noise_std=0.5)
+    assert isinstance(network, MembersMLP) and not network.multiplies_stacked
+    states = torch.randn(5, 2, OBSERVATION_SIZE)
+    with set_exploration_type(ExplorationType.RANDOM):
+        noisy = network(states)
+    with set_exploration_type(ExplorationType.DETERMINISTIC):
+        assert not torch.equal(network(states), noisy)  # the noise is drawn in exploring calls only
 
 
 def test_each_member_is_glorot_initialized_on_its_own_slice():

@@ -1,8 +1,8 @@
 """Bootstrapped DQN with randomized prior functions (Osband et al. 2016; Osband, Aslanides and Cassirer 2018).
 
 An ensemble of ``K`` Q-networks (heads), each a trainable network plus a fixed random
-prior network scaled by ``prior_scale`` (``Q_k = f_k + beta p_k``), stacked as TorchRL's
-``MultiAgentMLP`` (one vmapped call for all heads). The actor acts with one head per
+prior network scaled by ``prior_scale`` (``Q_k = f_k + beta p_k``), stacked as one
+:class:`~torchrl_mbe.modules.networks.MembersMLP` (one batched product for all heads). The actor acts with one head per
 episode (the index an env transform, :class:`~torchrl_mbe.envs.transforms.BootstrapHeads`,
 draws at each reset and carries in the tensordict) and greedily by the heads' mean.
 :class:`~torchrl_mbe.objectives.bootstrap.BootstrapDQNLoss` trains each head on its own
@@ -41,7 +41,7 @@ class EnsembleQNetwork(nn.Module):
     product, at a fraction of its work when ``F`` is large (DeepSea's ``N * N`` cells).
 
     A population of ``M`` ensembles (``num_members``) maps ``[*B, M, K, F]`` to
-    ``[*B, M, K, A]``: its ``M * K`` heads are stacked as one ``MultiAgentMLP``
+    ``[*B, M, K, A]``: its ``M * K`` heads are stacked as one ``MembersMLP``
     (member ``m``'s heads are ``m * K`` to ``m * K + K - 1``), and ``input_norm`` is
     the members' ``(M, F)`` statistics.
 
@@ -144,16 +144,12 @@ def _on_hot_entries(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
     """A ``make_members_mlp`` network's ``[*B, H, A]`` output on one-hot codes given by their hot entries ``[*B, H, E]``.
 
     The first layer sums the hot entries' weight columns (its product with the codes);
-    the others multiply as ``MultiAgentMLP`` does, its ReLU between layers, from its
-    stacked parameters (``network.params``: layers ``"0"``, ``"2"``, ...).
+    the rest of the network takes it from there (:meth:`~torchrl_mbe.modules.networks.MembersMLP.forward_from`).
     """
-    layers = [network.params[name] for name in sorted(network.params.keys(), key=int)]
-    first, *others = layers
+    first = network.params["0"]
     heads = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [H, 1]
     hidden = first["weight"][heads, :, hot].sum(-2) + first["bias"]  # [*B, H, hot, C] summed: [*B, H, C]
-    for layer in others:
-        hidden = torch.einsum("...hi,hoi->...ho", torch.relu(hidden), layer["weight"]) + layer["bias"]
-    return hidden
+    return network.forward_from(hidden, 1)
 
 
 class _AllHeads(nn.Module):
