@@ -19,11 +19,11 @@ from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
 from torchrl_mbe.envs.transforms import PopulationRNDTransform
 from torchrl_mbe.modules.networks import (
-    MembersMLP,
     make_members_mlp,
     make_per_action_mlp,
     make_population_q_actor,
     member_state_dict,
+    noisy_layers,
     reset_members_noise,
 )
 from torchrl_mbe.objectives.population import PopulationDQNLoss, PopulationRNDLoss
@@ -169,8 +169,15 @@ def test_a_population_of_one_starts_from_the_single_networks_weights():
 
 @pytest.mark.parametrize("num_members", [1, 3])
 @pytest.mark.parametrize("batch_shape", [(), (5,), (4, 6)])
-def test_the_members_batched_products_compute_multiagentmlps_values_and_gradients_to_the_bit(num_members, batch_shape):
-    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members)
+@pytest.mark.parametrize(
+    "noise_std, mode",
+    [(None, ExplorationType.RANDOM), (0.5, ExplorationType.RANDOM), (0.5, ExplorationType.DETERMINISTIC)],
+)
+def test_the_members_batched_products_compute_multiagentmlps_values_and_gradients_to_the_bit(
+    num_members, batch_shape, noise_std, mode
+):
+    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members, noise_std=noise_std)
+    reset_members_noise(network)
     vmapped = MultiAgentMLP(
         n_agent_inputs=OBSERVATION_SIZE,
         n_agent_outputs=3,
@@ -179,25 +186,26 @@ def test_the_members_batched_products_compute_multiagentmlps_values_and_gradient
         share_params=False,
         num_cells=NUM_CELLS,
         activation_class=torch.nn.ReLU,
+        **noisy_layers(noise_std),
     )
     vmapped.load_state_dict(network.state_dict())
     states = torch.randn(*batch_shape, num_members, OBSERVATION_SIZE)
-    values = network(states)
-    assert network.multiplies_stacked and torch.equal(values, vmapped(states))
+    with set_exploration_type(mode):
+        values, expected = network(states), vmapped(states)
+    assert network.multiplies_stacked and torch.equal(values, expected)
     values.square().sum().backward()
-    vmapped(states).square().sum().backward()
+    expected.square().sum().backward()
     for (name, parameter), expected in zip(network.named_parameters(), vmapped.parameters(), strict=True):
-        assert torch.equal(parameter.grad, expected.grad), name
+        torch.testing.assert_close(parameter.grad, expected.grad, rtol=0, atol=0, msg=name)  # None: no noise, no sigma gradient
 
 
-def test_noisy_members_keep_multiagentmlps_vmapped_call():
+def test_noisy_members_act_on_their_noise_only_while_exploring():
     network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, 2, noise_std=0.5)
-    assert isinstance(network, MembersMLP) and not network.multiplies_stacked
     states = torch.randn(5, 2, OBSERVATION_SIZE)
     with set_exploration_type(ExplorationType.RANDOM):
         noisy = network(states)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        assert not torch.equal(network(states), noisy)  # the noise is drawn in exploring calls only
+        assert not torch.equal(network(states), noisy)
 
 
 def test_each_member_is_glorot_initialized_on_its_own_slice():

@@ -150,16 +150,18 @@ def make_population_q_actor(
 
 
 class MembersMLP(MultiAgentMLP):
-    """TorchRL's ``MultiAgentMLP`` whose plain ``nn.Linear`` layers multiply the members' stacked parameters as batched matrices.
+    """TorchRL's ``MultiAgentMLP`` whose linear layers multiply the members' stacked parameters as batched matrices.
 
     ``MultiAgentMLP`` calls its template network under ``torch.vmap``, swapping the
     stacked parameters in with ``to_module`` at every call: about 0.2 to 0.5 ms a call
     on a CPU, more than a small member's forward. Here each layer is one
-    ``torch.baddbmm`` over the members (what the vmapped ``nn.Linear`` computes, to
-    the bit) and each activation is the template's module; the parameters, their
-    initialization and the ``state_dict`` are ``MultiAgentMLP``'s. A network with
-    layers of another kind (TorchRL's ``NoisyLinear``) takes ``MultiAgentMLP``'s
-    vmapped call. Build it with :func:`make_members_mlp`.
+    ``torch.baddbmm`` over the members (what the vmapped layer computes, to the bit)
+    and each activation is the template's module; the parameters, their
+    initialization and the ``state_dict`` are ``MultiAgentMLP``'s. A TorchRL
+    ``NoisyLinear`` layer's weight and bias are its own properties (its noise where
+    the exploration type asks for it), read with its stacked parameters swapped in.
+    A network of other layers, centralized or sharing its parameters, takes
+    ``MultiAgentMLP``'s call. Build it with :func:`make_members_mlp`.
 
     Examples:
         >>> import torch
@@ -180,13 +182,10 @@ class MembersMLP(MultiAgentMLP):
             not self.centralized
             and not self.share_params
             and all(
-                self._is_stacked_linear(name, module) or name not in self.params.keys()  # an activation
-                for name, module in self._empty_net.named_children()
+                (isinstance(module, nn.Linear) and module.bias is not None) or name not in self.params.keys()
+                for name, module in self._empty_net.named_children()  # linear layers with a bias, and activations
             )
         )
-
-    def _is_stacked_linear(self, name: str, module: nn.Module) -> bool:
-        return type(module) is nn.Linear and name in self.params.keys() and "bias" in self.params[name].keys()
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         if not self.multiplies_stacked:
@@ -199,12 +198,20 @@ class MembersMLP(MultiAgentMLP):
         batch_shape, num_members = hidden.shape[:-2], hidden.shape[-2]
         hidden = hidden.reshape(-1, num_members, hidden.shape[-1]).transpose(0, 1)  # [M, N, C]
         for name, module in list(self._empty_net.named_children())[start:]:
-            if type(module) is nn.Linear:
-                layer = self.params[name]
-                hidden = torch.baddbmm(layer["bias"].unsqueeze(-2), hidden, layer["weight"].transpose(-1, -2))
+            if isinstance(module, nn.Linear):
+                weight, bias = self._stacked_weight_and_bias(name, module)
+                hidden = torch.baddbmm(bias.unsqueeze(-2), hidden, weight.transpose(-1, -2))
             else:
                 hidden = module(hidden)
         return hidden.transpose(0, 1).reshape(*batch_shape, num_members, hidden.shape[-1])
+
+    def _stacked_weight_and_bias(self, name: str, module: nn.Linear) -> tuple[torch.Tensor, torch.Tensor]:
+        """Layer ``name``'s ``[M, out, in]`` weights and ``[M, out]`` biases."""
+        layer = self.params[name]
+        if type(module) is nn.Linear:
+            return layer["weight"], layer["bias"]
+        with layer.clone(recurse=False).to_module(module, preserve_module_state=False):  # NoisyLinear: its properties add the noise
+            return module.weight, module.bias
 
 
 def make_members_mlp(
