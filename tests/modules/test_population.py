@@ -196,7 +196,9 @@ def test_the_members_batched_products_compute_multiagentmlps_values_and_gradient
     values.square().sum().backward()
     expected.square().sum().backward()
     for (name, parameter), expected in zip(network.named_parameters(), vmapped.parameters(), strict=True):
-        torch.testing.assert_close(parameter.grad, expected.grad, rtol=0, atol=0, msg=name)  # None: no noise, no sigma gradient
+        torch.testing.assert_close(
+            parameter.grad, expected.grad, rtol=0, atol=0, msg=name
+        )  # None: no noise, no sigma gradient
 
 
 def test_noisy_members_act_on_their_noise_only_while_exploring():

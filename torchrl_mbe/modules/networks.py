@@ -210,7 +210,9 @@ class MembersMLP(MultiAgentMLP):
         layer = self.params[name]
         if type(module) is nn.Linear:
             return layer["weight"], layer["bias"]
-        with layer.clone(recurse=False).to_module(module, preserve_module_state=False):  # NoisyLinear: its properties add the noise
+        with layer.clone(recurse=False).to_module(
+            module, preserve_module_state=False
+        ):  # NoisyLinear: its properties add the noise
             return module.weight, module.bias
 
 
