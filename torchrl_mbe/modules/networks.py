@@ -210,9 +210,8 @@ class MembersMLP(MultiAgentMLP):
         layer = self.params[name]
         if type(module) is nn.Linear:
             return layer["weight"], layer["bias"]
-        with layer.clone(recurse=False).to_module(
-            module, preserve_module_state=False
-        ):  # NoisyLinear: its properties add the noise
+        # A NoisyLinear: its properties add the noise where TorchRL's rule says (a shallow copy: params is locked)
+        with layer.clone(recurse=False).to_module(module, preserve_module_state=False):
             return module.weight, module.bias
 
 
