@@ -1,18 +1,21 @@
-"""A population's DQN update against the same members updated one after another, and their replay sampling.
+"""A population's DQN update against the same members updated one after another, their replay sampling and their network calls.
 
-    python bench/population.py              # about a minute on 2 cores
+    python bench/population.py              # about two minutes on 2 cores
     python bench/population.py --threads 2  # torch intra-op threads (default 1, as the app)
 
 For N = 1, 5, 20, 100 members and hidden layers 64x64 and 256x256 (MountainCar's
 sizes: 2 observations, 3 actions), one update is: sample 256 transitions per member,
 DQN loss (double DQN, smooth L1), backward, gradient clipping, fused Adam, target
-update. "population" is one update of all N members (``MultiAgentMLP``, ``PopulationDQNLoss``,
+update. "population" is one update of all N members (``MembersMLP``, ``PopulationDQNLoss``,
 per-member clipping, ``PopulationReplayBuffer``; docs/architecture.md, "Where the member dimension lives");
 "N singles" is N separate networks, each with its own TorchRL ``DQNLoss``, Adam,
 ``HardUpdate`` and ``TensorDictReplayBuffer(LazyTensorStorage)``, updated in sequence:
 the work of N single runs. Speed-up is N singles' time over the population's; "vs N x one
 single" divides N times the first row's single update (MEMBERS starts at 1) instead: N
 networks updated in turn share the caches, so each is slower than a lone single run's.
+"network calls" times one call of the members' Q-network, as ``MembersMLP`` (batched
+products) and as TorchRL's ``MultiAgentMLP`` (its vmapped call) holding the same parameters,
+on the batch of an exploring step (16 envs) and of an update (256), with and without a backward.
 
 Every figure is the median over timed blocks (``time.perf_counter``) after untimed
 warm-up calls; the variants compared are timed in alternating blocks, so load changes
@@ -23,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import itertools
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -31,12 +35,12 @@ import torch
 from tensordict import TensorDict
 from timing import median_seconds, print_machine_line, print_rows
 from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
-from torchrl.modules import QValueActor
+from torchrl.modules import MultiAgentMLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
 
 from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
-from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
+from torchrl_mbe.modules.networks import make_members_mlp, make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.objectives.population import PopulationDQNLoss
 
 OBSERVATION_SIZE = 2
@@ -44,6 +48,8 @@ ACTION_SPEC = OneHot(3)
 BATCH_SIZE = 256
 CAPACITY = 10_000
 MEMBERS = (1, 5, 20, 100)
+CALL_MEMBERS = (1, 3, 5, 20)
+CALL_BATCHES = (16, BATCH_SIZE)  # an exploring step's 16 envs, an update's batch
 HIDDEN_LAYERS = ((64, 64), (256, 256))
 MAX_GRAD_NORM = 10.0
 HARD_UPDATE_INTERVAL = 150  # conf/tuned/mountaincar_dqn.yaml
@@ -181,6 +187,59 @@ def bench_sampling() -> None:
     print_rows(f"sample: ms for {BATCH_SIZE} transitions per member, capacity {CAPACITY:,}", header, rows)
 
 
+def network_call(network: torch.nn.Module, states: torch.Tensor, backward: bool) -> Callable[[], None]:
+    def forward() -> None:
+        with torch.no_grad():
+            network(states)
+
+    def forward_and_backward() -> None:
+        network(states).sum().backward()
+
+    return forward_and_backward if backward else forward
+
+
+def bench_network_calls() -> None:
+    hidden = HIDDEN_LAYERS[-1]
+    rows = []
+    for num_members in CALL_MEMBERS:
+        members = make_members_mlp(OBSERVATION_SIZE, ACTION_SPEC.space.n, hidden, num_members)
+        vmapped = MultiAgentMLP(
+            n_agent_inputs=OBSERVATION_SIZE,
+            n_agent_outputs=ACTION_SPEC.space.n,
+            n_agents=num_members,
+            centralized=False,
+            share_params=False,
+            num_cells=list(hidden),
+            activation_class=torch.nn.ReLU,
+        )
+        vmapped.load_state_dict(members.state_dict())
+        for batch, backward in itertools.product(CALL_BATCHES, (False, True)):
+            states = torch.randn(batch, num_members, OBSERVATION_SIZE)
+            seconds = median_seconds(
+                {
+                    "MembersMLP": network_call(members, states, backward),
+                    "MultiAgentMLP": network_call(vmapped, states, backward),
+                },
+                repeats=REPEATS,
+                warmup=2,
+                min_block_s=MIN_BLOCK_S,
+            )
+            members_ms, vmapped_ms = 1e3 * seconds["MembersMLP"], 1e3 * seconds["MultiAgentMLP"]
+            call = "forward and backward" if backward else "forward"
+            rows.append(
+                (
+                    str(num_members),
+                    str(batch),
+                    call,
+                    f"{members_ms:.3f}",
+                    f"{vmapped_ms:.3f}",
+                    f"{vmapped_ms / members_ms:.2f}x",
+                )
+            )
+    header = ("N", "batch", "call", "MembersMLP ms", "MultiAgentMLP ms", "speed-up")
+    print_rows(f"network calls: the members' {'x'.join(map(str, hidden))} Q-network, one call", header, rows)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1, as the app)")
@@ -194,6 +253,7 @@ def main() -> None:
     started = time.perf_counter()
     print_machine_line()
     bench_sampling()
+    bench_network_calls()
     bench_updates()
     print(f"\n{time.perf_counter() - started:.0f} s")
 
