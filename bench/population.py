@@ -15,7 +15,8 @@ single" divides N times the first row's single update (MEMBERS starts at 1) inst
 networks updated in turn share the caches, so each is slower than a lone single run's.
 "network calls" times one call of the members' Q-network, as ``MembersMLP`` (batched
 products) and as TorchRL's ``MultiAgentMLP`` (its vmapped call) holding the same parameters,
-on the batch of an exploring step (16 envs) and of an update (256), with and without a backward.
+plain and NoisyNet, on the batch of an exploring step (16 envs) and of an update (256), with
+and without a backward.
 
 Every figure is the median over timed blocks (``time.perf_counter``) after untimed
 warm-up calls; the variants compared are timed in alternating blocks, so load changes
@@ -35,12 +36,13 @@ import torch
 from tensordict import TensorDict
 from timing import median_seconds, print_machine_line, print_rows
 from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MultiAgentMLP, QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
 
 from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
-from torchrl_mbe.modules.networks import make_members_mlp, make_per_action_mlp, make_population_q_actor
+from torchrl_mbe.modules.networks import make_members_mlp, make_per_action_mlp, make_population_q_actor, noisy_layers
 from torchrl_mbe.objectives.population import PopulationDQNLoss
 
 OBSERVATION_SIZE = 2
@@ -50,6 +52,7 @@ CAPACITY = 10_000
 MEMBERS = (1, 5, 20, 100)
 CALL_MEMBERS = (1, 3, 5, 20)
 CALL_BATCHES = (16, BATCH_SIZE)  # an exploring step's 16 envs, an update's batch
+CALL_NOISE = (None, 0.5)  # plain linear layers, NoisyNet's
 HIDDEN_LAYERS = ((64, 64), (256, 256))
 MAX_GRAD_NORM = 10.0
 HARD_UPDATE_INTERVAL = 150  # conf/tuned/mountaincar_dqn.yaml
@@ -188,6 +191,8 @@ def bench_sampling() -> None:
 
 
 def network_call(network: torch.nn.Module, states: torch.Tensor, backward: bool) -> Callable[[], None]:
+    """One call of ``network`` on ``states`` as an exploring step makes it (noise drawn, no gradient) or an update (with its backward)."""
+
     def forward() -> None:
         with torch.no_grad():
             network(states)
@@ -195,14 +200,21 @@ def network_call(network: torch.nn.Module, states: torch.Tensor, backward: bool)
     def forward_and_backward() -> None:
         network(states).sum().backward()
 
-    return forward_and_backward if backward else forward
+    def exploring(call: Callable[[], None]) -> Callable[[], None]:
+        def call_exploring() -> None:
+            with set_exploration_type(ExplorationType.RANDOM):  # NoisyNet layers draw on their noise
+                call()
+
+        return call_exploring
+
+    return exploring(forward_and_backward if backward else forward)
 
 
 def bench_network_calls() -> None:
     hidden = HIDDEN_LAYERS[-1]
     rows = []
-    for num_members in CALL_MEMBERS:
-        members = make_members_mlp(OBSERVATION_SIZE, ACTION_SPEC.space.n, hidden, num_members)
+    for noise_std, num_members in itertools.product(CALL_NOISE, CALL_MEMBERS):
+        members = make_members_mlp(OBSERVATION_SIZE, ACTION_SPEC.space.n, hidden, num_members, noise_std=noise_std)
         vmapped = MultiAgentMLP(
             n_agent_inputs=OBSERVATION_SIZE,
             n_agent_outputs=ACTION_SPEC.space.n,
@@ -211,6 +223,7 @@ def bench_network_calls() -> None:
             share_params=False,
             num_cells=list(hidden),
             activation_class=torch.nn.ReLU,
+            **noisy_layers(noise_std),
         )
         vmapped.load_state_dict(members.state_dict())
         for batch, backward in itertools.product(CALL_BATCHES, (False, True)):
@@ -225,18 +238,18 @@ def bench_network_calls() -> None:
                 min_block_s=MIN_BLOCK_S,
             )
             members_ms, vmapped_ms = 1e3 * seconds["MembersMLP"], 1e3 * seconds["MultiAgentMLP"]
-            call = "forward and backward" if backward else "forward"
             rows.append(
                 (
+                    "NoisyNet" if noise_std else "plain",
                     str(num_members),
                     str(batch),
-                    call,
+                    "forward and backward" if backward else "forward",
                     f"{members_ms:.3f}",
                     f"{vmapped_ms:.3f}",
                     f"{vmapped_ms / members_ms:.2f}x",
                 )
             )
-    header = ("N", "batch", "call", "MembersMLP ms", "MultiAgentMLP ms", "speed-up")
+    header = ("layers", "N", "batch", "call", "MembersMLP ms", "MultiAgentMLP ms", "speed-up")
     print_rows(f"network calls: the members' {'x'.join(map(str, hidden))} Q-network, one call", header, rows)
 
 
