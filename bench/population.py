@@ -37,12 +37,12 @@ from tensordict import TensorDict
 from timing import median_seconds, print_machine_line, print_rows
 from torchrl.data import LazyTensorStorage, OneHot, TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.modules import MultiAgentMLP, QValueActor
+from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, LossModule
 
 from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
-from torchrl_mbe.modules.networks import make_members_mlp, make_per_action_mlp, make_population_q_actor, noisy_layers
+from torchrl_mbe.modules.networks import make_members_mlp, make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.objectives.population import PopulationDQNLoss
 
 OBSERVATION_SIZE = 2
@@ -191,39 +191,28 @@ def bench_sampling() -> None:
 
 
 def network_call(network: torch.nn.Module, states: torch.Tensor, backward: bool) -> Callable[[], None]:
-    """One call of ``network`` on ``states`` as an exploring step makes it (noise drawn, no gradient) or an update (with its backward)."""
+    """One call of ``network`` on ``states`` while exploring (NoisyNet layers draw on their noise): an exploring step's (no gradient) or an update's (with its backward)."""
 
     def forward() -> None:
-        with torch.no_grad():
+        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
             network(states)
 
     def forward_and_backward() -> None:
-        network(states).sum().backward()
+        with set_exploration_type(ExplorationType.RANDOM):
+            network(states).sum().backward()
 
-    def exploring(call: Callable[[], None]) -> Callable[[], None]:
-        def call_exploring() -> None:
-            with set_exploration_type(ExplorationType.RANDOM):  # NoisyNet layers draw on their noise
-                call()
-
-        return call_exploring
-
-    return exploring(forward_and_backward if backward else forward)
+    return forward_and_backward if backward else forward
 
 
 def bench_network_calls() -> None:
     hidden = HIDDEN_LAYERS[-1]
     rows = []
     for noise_std, num_members in itertools.product(CALL_NOISE, CALL_MEMBERS):
-        members = make_members_mlp(OBSERVATION_SIZE, ACTION_SPEC.space.n, hidden, num_members, noise_std=noise_std)
-        vmapped = MultiAgentMLP(
-            n_agent_inputs=OBSERVATION_SIZE,
-            n_agent_outputs=ACTION_SPEC.space.n,
-            n_agents=num_members,
-            centralized=False,
-            share_params=False,
-            num_cells=list(hidden),
-            activation_class=torch.nn.ReLU,
-            **noisy_layers(noise_std),
+        members, vmapped = (
+            make_members_mlp(
+                OBSERVATION_SIZE, ACTION_SPEC.space.n, hidden, num_members, noise_std=noise_std, batched=batched
+            )
+            for batched in (True, False)
         )
         vmapped.load_state_dict(members.state_dict())
         for batch, backward in itertools.product(CALL_BATCHES, (False, True)):

@@ -19,11 +19,11 @@ from torchrl_mbe.app.optim import clip_grad_norm_per_member_
 from torchrl_mbe.app.replay import PopulationReplayBuffer
 from torchrl_mbe.envs.transforms import PopulationRNDTransform
 from torchrl_mbe.modules.networks import (
+    MembersMLP,
     make_members_mlp,
     make_per_action_mlp,
     make_population_q_actor,
     member_state_dict,
-    noisy_layers,
     reset_members_noise,
 )
 from torchrl_mbe.objectives.population import PopulationDQNLoss, PopulationRNDLoss
@@ -167,6 +167,15 @@ def test_a_population_of_one_starts_from_the_single_networks_weights():
         assert torch.equal(stacked[name][0], value), name
 
 
+def twin_networks(num_members: int, noise_std: float | None = None) -> tuple[MembersMLP, MultiAgentMLP]:
+    """A ``MembersMLP`` and TorchRL's ``MultiAgentMLP`` holding the same parameters (and noise)."""
+    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members, noise_std=noise_std)
+    reset_members_noise(network)
+    vmapped = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members, noise_std=noise_std, batched=False)
+    vmapped.load_state_dict(network.state_dict())
+    return network, vmapped
+
+
 @pytest.mark.parametrize("num_members", [1, 3])
 @pytest.mark.parametrize("batch_shape", [(), (5,), (4, 6)])
 @pytest.mark.parametrize(
@@ -176,29 +185,50 @@ def test_a_population_of_one_starts_from_the_single_networks_weights():
 def test_the_members_batched_products_compute_multiagentmlps_values_and_gradients_to_the_bit(
     num_members, batch_shape, noise_std, mode
 ):
-    network = make_members_mlp(OBSERVATION_SIZE, 3, NUM_CELLS, num_members, noise_std=noise_std)
-    reset_members_noise(network)
-    vmapped = MultiAgentMLP(
-        n_agent_inputs=OBSERVATION_SIZE,
-        n_agent_outputs=3,
-        n_agents=num_members,
-        centralized=False,
-        share_params=False,
-        num_cells=NUM_CELLS,
-        activation_class=torch.nn.ReLU,
-        **noisy_layers(noise_std),
-    )
-    vmapped.load_state_dict(network.state_dict())
+    network, vmapped = twin_networks(num_members, noise_std)
     states = torch.randn(*batch_shape, num_members, OBSERVATION_SIZE)
     with set_exploration_type(mode):
-        values, expected = network(states), vmapped(states)
-    assert network.multiplies_stacked and torch.equal(values, expected)
+        values, vmapped_values = network(states), vmapped(states)
+    assert network.batched_products and torch.equal(values, vmapped_values)
     values.square().sum().backward()
-    expected.square().sum().backward()
-    for (name, parameter), expected in zip(network.named_parameters(), vmapped.parameters(), strict=True):
-        torch.testing.assert_close(
-            parameter.grad, expected.grad, rtol=0, atol=0, msg=name
-        )  # None: no noise, no sigma gradient
+    vmapped_values.square().sum().backward()
+    # without noise (DETERMINISTIC) the noise scales get no gradient: None on both sides
+    for (name, parameter), twin in zip(network.named_parameters(), vmapped.parameters(), strict=True):
+        torch.testing.assert_close(parameter.grad, twin.grad, rtol=0, atol=0, msg=name)
+
+
+@pytest.mark.parametrize("noise_std", [None, 0.5])
+def test_the_dqn_loss_reads_the_target_parameters_it_swaps_into_the_members_network(noise_std):
+    network, vmapped = twin_networks(3, noise_std)
+    losses = [
+        PopulationDQNLoss(QValueActor(twin, spec=SPEC, in_keys=["observation"]), delay_value=True, action_space=SPEC)
+        for twin in (network, vmapped)
+    ]
+    batch = transitions(32, 3)
+    for loss in losses:
+        loss.make_value_estimator(gamma=0.99)
+        loss.target_value_network_params.apply_(lambda target: target.add_(0.5))  # the target is not the online network
+    with set_exploration_type(ExplorationType.RANDOM):
+        outputs = [loss(batch.clone()) for loss in losses]
+    assert torch.equal(outputs[0]["member_loss"], outputs[1]["member_loss"])
+    outputs[0]["loss"].backward()
+    outputs[1]["loss"].backward()
+    for online, twin in zip(losses[0].parameters(), losses[1].parameters(), strict=True):
+        torch.testing.assert_close(online.grad, twin.grad, rtol=0, atol=0)
+
+
+def test_a_network_sharing_its_parameters_takes_multiagentmlps_call():
+    network = MembersMLP(
+        n_agent_inputs=OBSERVATION_SIZE, n_agent_outputs=3, n_agents=3, centralized=False, share_params=True
+    )
+    vmapped = MultiAgentMLP(
+        n_agent_inputs=OBSERVATION_SIZE, n_agent_outputs=3, n_agents=3, centralized=False, share_params=True
+    )
+    vmapped.load_state_dict(network.state_dict())
+    states = torch.randn(5, 3, OBSERVATION_SIZE)
+    assert not network.batched_products and torch.equal(network(states), vmapped(states))
+    with pytest.raises(ValueError, match="forward_from needs a MembersMLP that computes with batched products"):
+        network.forward_from(states, 0)
 
 
 def test_noisy_members_act_on_their_noise_only_while_exploring():

@@ -153,15 +153,17 @@ class MembersMLP(MultiAgentMLP):
     """TorchRL's ``MultiAgentMLP`` whose linear layers multiply the members' stacked parameters as batched matrices.
 
     ``MultiAgentMLP`` calls its template network under ``torch.vmap``, swapping the
-    stacked parameters in with ``to_module`` at every call: about 0.2 to 0.5 ms a call
-    on a CPU, more than a small member's forward. Here each layer is one
-    ``torch.baddbmm`` over the members (what the vmapped layer computes, to the bit)
-    and each activation is the template's module; the parameters, their
-    initialization and the ``state_dict`` are ``MultiAgentMLP``'s. A TorchRL
-    ``NoisyLinear`` layer's weight and bias are its own properties (its noise where
-    the exploration type asks for it), read with its stacked parameters swapped in.
-    A network of other layers, centralized or sharing its parameters, takes
-    ``MultiAgentMLP``'s call. Build it with :func:`make_members_mlp`.
+    stacked parameters in with ``to_module`` at every call, which costs more than a
+    small member's forward (docs/performance.md, "The members' networks as batched
+    products"). Here each layer is one ``torch.baddbmm`` over the members (on a CPU,
+    what the vmapped layer computes, to the bit) and each activation is the
+    template's module; the parameters, their initialization and the ``state_dict``
+    are ``MultiAgentMLP``'s. A TorchRL ``NoisyLinear`` layer's weight and bias are
+    its own properties (its noise where the exploration type asks for it), read with
+    its stacked parameters swapped in. :attr:`batched_products` says whether the
+    network computes so: a lazy, centralized or parameter-sharing network, one with
+    tuple outputs or with layers of another kind takes ``MultiAgentMLP``'s call.
+    Build it with :func:`make_members_mlp`.
 
     Examples:
         >>> import torch
@@ -172,15 +174,17 @@ class MembersMLP(MultiAgentMLP):
         >>> vmapped = MultiAgentMLP(**kwargs, num_cells=[8])
         >>> _ = vmapped.load_state_dict(network.state_dict())
         >>> states = torch.randn(5, 4, 3)
-        >>> torch.equal(network(states), vmapped(states))
-        True
+        >>> network.batched_products, torch.equal(network(states), vmapped(states))
+        (True, True)
     """
 
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
-        self.multiplies_stacked = (
-            not self.centralized
+        self.batched_products = (
+            self.initialized
+            and not self.centralized
             and not self.share_params
+            and isinstance(self.n_agent_outputs, int)
             and all(
                 (isinstance(module, nn.Linear) and module.bias is not None) or name not in self.params.keys()
                 for name, module in self._empty_net.named_children()  # linear layers with a bias, and activations
@@ -188,13 +192,19 @@ class MembersMLP(MultiAgentMLP):
         )
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
-        if not self.multiplies_stacked:
+        if not self.batched_products:
             return super().forward(*inputs)
         features = self._pre_forward_check(torch.cat(inputs, -1) if len(inputs) > 1 else inputs[0])
         return self.forward_from(features, 0)
 
     def forward_from(self, hidden: torch.Tensor, start: int) -> torch.Tensor:
-        """The template's modules from the ``start``-th on, applied to ``hidden`` ``[*B, M, C]`` (``[*B, M, out]``)."""
+        """The template's modules from the ``start``-th on, applied to ``hidden`` ``[*B, M, C]`` (``[*B, M, out]``).
+
+        Raises:
+            ValueError: the network does not compute with :attr:`batched_products`.
+        """
+        if not self.batched_products:
+            raise ValueError("forward_from needs a MembersMLP that computes with batched products (batched_products).")
         batch_shape, num_members = hidden.shape[:-2], hidden.shape[-2]
         hidden = hidden.reshape(-1, num_members, hidden.shape[-1]).transpose(0, 1)  # [M, N, C]
         for name, module in list(self._empty_net.named_children())[start:]:
@@ -224,8 +234,9 @@ def make_members_mlp(
     activation_class: type[nn.Module] = nn.ReLU,
     noise_std: float | None = None,
     glorot: bool = True,
+    batched: bool = True,
     device: torch.device | str | None = "cpu",
-) -> MembersMLP:
+) -> MultiAgentMLP:
     """``num_members`` independent MLPs as one :class:`MembersMLP` (a TorchRL ``MultiAgentMLP``): ``[*B, M, in_features]`` to ``[*B, M, out_features]``.
 
     ``MultiAgentMLP(share_params=False, centralized=False)`` stacks the members'
@@ -238,7 +249,8 @@ def make_members_mlp(
     ``Linear`` initialization (a TorchRL ``MLP``'s). With ``noise_std`` the layers are TorchRL's
     ``NoisyLinear`` (each member a NoisyNet, its noise starting at that scale),
     which keep their own initialization; resample their noise with
-    :func:`reset_members_noise`.
+    :func:`reset_members_noise`. With ``batched=False`` it is TorchRL's ``MultiAgentMLP``
+    itself, which computes the same values through its vmapped call.
 
     Examples:
         >>> import torch
@@ -247,7 +259,7 @@ def make_members_mlp(
         >>> network(torch.zeros(5, 4, 3)).shape, network.params["0", "weight"].shape
         (torch.Size([5, 4, 2]), torch.Size([4, 8, 3]))
     """
-    network = MembersMLP(
+    network = (MembersMLP if batched else MultiAgentMLP)(
         n_agent_inputs=in_features,
         n_agent_outputs=out_features,
         n_agents=num_members,
