@@ -24,6 +24,7 @@ from torchrl_mbe.modules import (
     NoveltyPlanner,
     RollingGaussianDensity,
     RollingWindowNovelty,
+    VisitCounts,
 )
 from torchrl_mbe.objectives import DynamicsLoss
 
@@ -42,6 +43,7 @@ __all__ = [
     "NoveltyPlanner",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
+    "VisitCounts",
     "make_env",
 ]
 

@@ -61,6 +61,28 @@ def test_the_categorical_preset_solves_deepsea_10_on_every_member_within_400_epi
         )
 
 
+@pytest.mark.parametrize("population", [1, 2])
+def test_the_count_bonus_is_learned_as_an_intrinsic_reward_that_falls_as_the_grid_is_visited(
+    compose_default, tmp_path, read_table, population
+):
+    cfg = compose_default(
+        "env=deepsea",
+        "env.size=6",
+        "exploration=counts",
+        "exploration.intrinsic_coef=0.5",
+        f"population={population}",
+        "train.episodes=150",
+        "train.stop_when_solved=false",
+        "algo.learning_starts=60",
+        "logger.log_every_updates=6",
+    )
+    train(cfg, tmp_path)
+    for run_dir in [tmp_path] if population == 1 else [tmp_path / "seed0", tmp_path / "seed1"]:
+        bonus = [float(row["intrinsic_reward"]) for row in read_table(run_dir, "updates")]
+        assert all(0 < value <= 1 for value in bonus)  # 1 / sqrt(n + 1) of each visited cell's count
+        assert bonus[-1] < bonus[0]  # the cells grow familiar
+
+
 def test_a_replay_buffer_larger_than_the_memory_available_is_refused_in_one_line_before_training(
     compose_default, tmp_path, monkeypatch
 ):

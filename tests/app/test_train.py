@@ -18,7 +18,8 @@ from torchrl_mbe.rundir import BEST_POLICY, CHECKPOINT
 
 
 @pytest.mark.parametrize(
-    "exploration", ["gaussian", "kernel", "diagonal", "knn", "kde", "rnd", "noisy", "bootstrap", "egreedy", "none"]
+    "exploration",
+    ["gaussian", "kernel", "diagonal", "knn", "kde", "counts", "rnd", "noisy", "bootstrap", "egreedy", "none"],
 )
 def test_every_explorer_trains_on_mountaincar_and_writes_its_run(tmp_path, exploration, compose_config, read_table):
     summary = train(compose_config(f"exploration={exploration}", "logger.log_every_updates=10"), tmp_path)

@@ -209,3 +209,39 @@ def test_a_collector_runs_the_policy_compiled():
     observations = torch.cat([batch["observation"] for batch in batches], 1)
     # The compiled wrapper hides the policy's spec, so the Collector probes the policy once on the first observation
     torch.testing.assert_close(policy.novelty.window_states(), torch.cat([observations[:, :1], observations], 1))
+
+
+def test_value_weight_makes_an_exploring_step_weigh_the_q_values_against_the_novelty():
+    env = make_env("mountaincar", seed=0)
+    td = TensorDict({"observation": torch.tensor([-0.5, 0.0])}, [])
+    chosen = {}
+    for value_weight in (0.0, 1e6):
+        policy = build_policy(env, dynamics=ShiftDynamics(SHIFTS), value_weight=value_weight)
+        policy.novelty.update(0.01 * torch.randn(50, 2) + torch.tensor([-0.5, 0.0]))
+        torch.nn.init.zeros_(policy.actor.module[0].module[-1].weight)
+        with torch.no_grad():  # Q prefers action 1, the planner's novelty action 2
+            policy.actor.module[0].module[-1].bias.copy_(torch.tensor([0.0, 1.0, 0.0]))
+        with set_exploration_type(ExplorationType.RANDOM):
+            chosen[value_weight] = {int(policy(td.clone())["action"].argmax()) for _ in range(5)}
+    assert chosen == {0.0: {2}, 1e6: {1}}
+
+
+def test_a_novelty_reward_scores_each_next_state_against_the_states_the_policy_visited_before_it():
+    from torchrl_mbe import VisitCounts
+    from torchrl_mbe.envs.transforms import NoveltyReward
+
+    env = make_env("deepsea", size=5, seed=0)
+    spec = env.action_spec_unbatched
+    counts = VisitCounts(25, batch_shape=env.batch_size)
+    actor = QValueActor(MLP(out_features=2, num_cells=[8]), spec=spec, in_keys=["observation"])
+    policy = ModelBasedExplorationPolicy(actor, NoveltyPlanner(DynamicsModel(25, spec), counts, spec), eps_init=1.0)
+    env.append_transform(NoveltyReward(counts))
+    batch = next(iter(Collector(env, policy, frames_per_batch=40, total_frames=-1)))
+    visited = batch["observation"].reshape(40, 25).argmax(-1).tolist()
+    next_cells = batch["next", "observation"].reshape(40, 25)
+    expected = [
+        1.0 if not next_cells[step].any() else (visited[: step + 1].count(int(next_cells[step].argmax())) + 1) ** -0.5
+        for step in range(40)
+    ]  # a terminal step's next observation is all zeros: no cell, never visited
+    torch.testing.assert_close(batch["next", "intrinsic_reward"].reshape(40), torch.tensor(expected))
+    assert counts.counts.sum() == 40  # only the policy writes the counts: each visited state once

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import functools
+
 import pytest
 import torch
 from torch.distributions import MultivariateNormal
@@ -10,6 +12,7 @@ from torchrl_mbe import (
     KernelDensityNovelty,
     KNearestNovelty,
     RollingGaussianDensity,
+    VisitCounts,
 )
 
 
@@ -233,6 +236,7 @@ def test_a_low_rank_fit_travels_in_the_state_dict_to_a_fresh_density():
     assert not fresh.fit_stale and torch.equal(fresh.score(queries), scores)
 
 
+HASHED_COUNTS = functools.partial(VisitCounts, bits=8)  # counts of vectors that are not one-hot: SimHash buckets
 ALL_SCORERS = [
     RollingGaussianDensity,
     GaussianKernelNovelty,
@@ -272,7 +276,7 @@ def test_every_scorer_compiles_with_fullgraph_and_scores_as_it_does_eagerly(scor
     assert torch.equal(compiled_score(queries), torch.zeros(4, 3))
 
 
-@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
+@pytest.mark.parametrize("scorer_cls", [*ALL_SCORERS, HASHED_COUNTS])
 def test_every_scorer_keeps_one_window_per_env_through_a_collector_with_batched_envs(scorer_cls):
     from torchrl.collectors import Collector
     from torchrl.modules import MLP, QValueActor
@@ -291,7 +295,7 @@ def test_every_scorer_keeps_one_window_per_env_through_a_collector_with_batched_
     collector.shutdown()
 
 
-@pytest.mark.parametrize("scorer_cls", ALL_SCORERS)
+@pytest.mark.parametrize("scorer_cls", [*ALL_SCORERS, HASHED_COUNTS])
 def test_every_scorer_scores_a_populations_windows_apart(scorer_cls):
     # batch (num_envs, M) = (4, 3): changing member 1's visits changes member 1's scores, and no other's
     visits = torch.randn(60, 4, 3, 8)
@@ -434,3 +438,34 @@ def test_kernel_density_sees_two_clusters_where_the_gaussian_sees_one_blob():
     between, inside = torch.tensor([[0.0, 0.0]]), torch.tensor([[3.0, 3.0]])
     assert kde.score(between) > kde.score(inside)  # the empty gap is rare
     assert gaussian.score(between) < gaussian.score(inside)  # the blob's centre looks most familiar
+
+
+def test_visit_counts_give_each_one_hot_state_the_bonus_of_its_visits_in_the_window():
+    cells = torch.eye(5)
+    visited = [0, 1, 1, 2, 2, 2, 3, 0, 0]
+    rolling, every = VisitCounts(5, window=4), VisitCounts(5)
+    for cell in visited:  # one at a time, so the rolling window wraps round
+        rolling.update(cells[[cell]])
+        every.update(cells[[cell]])
+    last_four = torch.tensor([visited[-4:].count(cell) for cell in range(5)], dtype=torch.float32)
+    all_visits = torch.tensor([visited.count(cell) for cell in range(5)], dtype=torch.float32)
+    torch.testing.assert_close(rolling.score(cells), (last_four + 1).rsqrt())
+    torch.testing.assert_close(every.score(cells), (all_visits + 1).rsqrt())
+    assert every.score(cells).argmax() == 4  # never visited: the highest bonus, 1
+
+
+def test_visit_counts_hash_near_states_together_and_restore_into_a_fresh_scorer():
+    counts = VisitCounts(3, bits=12)
+    states = torch.randn(40, 3)
+    counts.update(states)
+    assert counts.counts.sum() == 40
+    assert counts.score(states[:1] * 1.001) == counts.score(states[:1])  # same direction: the same bucket
+    fresh = VisitCounts(bits=12)  # the state size and the projection come from the state dict
+    fresh.load_state_dict(counts.state_dict())
+    probe = torch.randn(10, 3)
+    assert torch.equal(fresh.score(probe), counts.score(probe))
+
+
+def test_visit_counts_refuse_a_code_length_they_cannot_hold():
+    with pytest.raises(ValueError, match="bits must be an integer from 1 to 24"):
+        VisitCounts(3, bits=40)

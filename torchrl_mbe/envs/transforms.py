@@ -1,15 +1,16 @@
 """Transforms: TorchRL's RND with each member's running statistics on a population's env batch ``[num_envs, M]``,
-and what Bootstrapped DQN needs from the env (the acting head of each episode, a bootstrap mask per step)."""
+a novelty scorer's intrinsic reward, and what Bootstrapped DQN needs from the env (the acting head of each
+episode, a bootstrap mask per step)."""
 
 from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import Binary, Categorical, Composite
+from torchrl.data import Binary, Categorical, Composite, Unbounded
 from torchrl.envs.transforms import RNDTransform, Transform
 from torchrl.envs.transforms.rnd import RunningMeanStd
 
-__all__ = ["BootstrapHeads", "PopulationRNDTransform"]
+__all__ = ["BootstrapHeads", "NoveltyReward", "PopulationRNDTransform"]
 
 
 class BootstrapHeads(Transform):
@@ -108,3 +109,55 @@ class PopulationRNDTransform(RNDTransform):
             self._obs_rms = RunningMeanStd(shape=obs.shape[-2:]).to(obs.device)
         if self.normalize_reward and self._reward_rms is None:
             self._reward_rms = RunningMeanStd(shape=(num_members, 1)).to(obs.device)
+
+
+class NoveltyReward(Transform):
+    """A novelty scorer's intrinsic reward: each step's next observation, scored against the states visited before it.
+
+    The scorer is the one the exploration policy fills (a
+    :class:`~torchrl_mbe.ModelBasedExplorationPolicy` pushes every visited
+    observation into its planner's window before acting), so the next observation
+    of a step is scored against the window as it stood when the step was taken:
+    a state the window has not seen scores high. The transform only reads the
+    scorer; the policy alone writes its window. Written under
+    ``("next", out_key)`` beside the reward, as TorchRL's ``RNDTransform`` writes its own.
+
+    Args:
+        novelty (RollingWindowNovelty): any scorer of :mod:`torchrl_mbe.modules.novelty`
+            (``score(states)``, higher = rarer), with one window per env of the batch.
+
+    Keyword Args:
+        in_key (NestedKey): the observation scored. Defaults to ``"observation"``.
+        out_key (NestedKey): the reward written. Defaults to ``"intrinsic_reward"``.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe import VisitCounts, make_env
+        >>> from torchrl_mbe.envs.transforms import NoveltyReward
+        >>> env = make_env("deepsea", size=4)  # one env: a batch of [1]
+        >>> counts = VisitCounts(16, batch_shape=env.batch_size)
+        >>> _ = env.append_transform(NoveltyReward(counts))
+        >>> left = lambda td: td.set("action", torch.tensor([[1, 0]]))  # the same moves every episode
+        >>> first = env.rollout(3, left)
+        >>> first["next", "intrinsic_reward"].flatten()  # nothing visited yet: every state is new
+        tensor([1., 1., 1.])
+        >>> counts.update(first["next", "observation"].transpose(0, 1))  # what the policy's window holds after it
+        >>> env.rollout(3, left)["next", "intrinsic_reward"].flatten()  # the same states again, each visited once
+        tensor([0.7071, 0.7071, 0.7071])
+    """
+
+    def __init__(self, novelty: torch.nn.Module, *, in_key="observation", out_key="intrinsic_reward") -> None:
+        super().__init__(in_keys=[in_key], out_keys=[out_key])
+        self.novelty = novelty
+
+    @torch.no_grad()
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        observation = next_tensordict.get(self.in_keys[0])
+        next_tensordict.set(self.out_keys[0], self.novelty.score(observation.float()).unsqueeze(-1))
+        return next_tensordict
+
+    def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        reward_spec[self.out_keys[0]] = Unbounded(
+            (*reward_spec.shape, 1), device=reward_spec.device, dtype=torch.float32
+        )
+        return reward_spec

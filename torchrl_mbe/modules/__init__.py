@@ -11,6 +11,7 @@ from torchrl_mbe.modules.novelty import (
     KNearestNovelty,
     RollingGaussianDensity,
     RollingWindowNovelty,
+    VisitCounts,
 )
 from torchrl_mbe.modules.planner import NoveltyPlanner
 
@@ -26,6 +27,7 @@ __all__ = [
     "RollingGaussianDensity",
     "RollingWindowNovelty",
     "Standardize",
+    "VisitCounts",
     "check_eps_schedule",
     "init_linear_layers",
     "make_per_action_mlp",

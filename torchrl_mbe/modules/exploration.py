@@ -12,7 +12,7 @@ from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import EGreedyModule
 
-from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.modules.planner import NoveltyPlanner, random_argmax
 
 __all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy", "check_eps_schedule"]
 
@@ -113,6 +113,10 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
     Keyword Args:
         schedule (str): ``"linear"`` or ``"exponential"``. Defaults to ``"linear"``.
         model_error_threshold (float, optional): enables the random warm-up.
+        value_weight (float): an exploring step takes the action of the highest
+            ``novelty + value_weight * action_value``: the planner's one-step novelty
+            plus the actor's Q-values, which carry novelty further when the Q-network
+            learns an intrinsic reward. Defaults to ``0`` (the paper: novelty alone).
         action_key (NestedKey): the action entry. Defaults to ``"action"``.
 
     Examples:
@@ -141,6 +145,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         *,
         schedule: Literal["linear", "exponential"] = "linear",
         model_error_threshold: float | None = None,
+        value_weight: float = 0.0,
         action_key: NestedKey = "action",
     ) -> None:
         device = planner.candidate_actions.device
@@ -156,6 +161,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         self.actor = actor
         self.planner = planner
         self.model_error_threshold = model_error_threshold
+        self.value_weight = float(value_weight)
         self.observation_key = planner.in_keys[0]
         self.in_keys = list(dict.fromkeys([*actor.in_keys, self.observation_key]))
         self.out_keys = list(actor.out_keys)
@@ -198,15 +204,18 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         the planner's draws first: from the same random state, a trusted model's
         compiled actions are the eager ones.
         """
-        observation = tensordict.get(self.observation_key)
         if not torch.compiler.is_compiling():
-            return self._planned_action(observation) if self.model_trusted else self._random_action(tensordict)
-        planned, random = self._planned_action(observation), self._random_action(tensordict)
+            return self._planned_action(tensordict) if self.model_trusted else self._random_action(tensordict)
+        planned, random = self._planned_action(tensordict), self._random_action(tensordict)
         return torch.where(self.model_trusted, planned, random)
 
-    def _planned_action(self, observation: torch.Tensor) -> torch.Tensor:
-        action, _ = self.planner.plan(observation)
-        return action
+    def _planned_action(self, tensordict: TensorDictBase) -> torch.Tensor:
+        observation = tensordict.get(self.observation_key)
+        if not self.value_weight:
+            action, _ = self.planner.plan(observation)
+            return action
+        scores = self.planner.action_scores(observation) + self.value_weight * tensordict.get("action_value")
+        return self.planner.actions_at(random_argmax(scores))
 
     def _random_action(self, tensordict: TensorDictBase) -> torch.Tensor:
         planner = self.planner

@@ -38,6 +38,8 @@ from torchrl_mbe.app.explorers.baselines import (
     RNDExplorer,
 )
 from torchrl_mbe.app.explorers.planning import (
+    CountsExploration,
+    CountsExplorer,
     DiagonalExploration,
     DiagonalExplorer,
     DynamicsTraining,
@@ -57,6 +59,8 @@ __all__ = [
     "EXPLORERS",
     "BootstrapExploration",
     "BootstrapExplorer",
+    "CountsExploration",
+    "CountsExplorer",
     "DiagonalExploration",
     "DiagonalExplorer",
     "DynamicsTraining",
@@ -96,6 +100,7 @@ EXPLORERS: dict[str, type[Explorer]] = {
         DiagonalExplorer,
         KNearestExplorer,
         KernelDensityExplorer,
+        CountsExplorer,
         RNDExplorer,
         NoisyExplorer,
         BootstrapExplorer,
@@ -103,7 +108,7 @@ EXPLORERS: dict[str, type[Explorer]] = {
         Explorer,
     )
 }
-"""Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde),
+"""Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde, counts),
 TorchRL's RND and NoisyNet, Bootstrapped DQN with priors, e-greedy (random exploring actions) and none (never explores)."""
 
 

@@ -8,7 +8,7 @@ from typing import ClassVar
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
-from torchrl.data import ReplayBuffer
+from torchrl.data import OneHot, ReplayBuffer, TensorSpec
 
 from torchrl_mbe.app.explorers.base import (
     EGreedyExplorer,
@@ -22,6 +22,7 @@ from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
+from torchrl_mbe.envs.transforms import NoveltyReward
 from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
@@ -40,6 +41,10 @@ class PlanningExploration(ExplorationConfig):
     horizon: int = setting(1, POSITIVE_INT)  # planning depth; >1 plans action sequences
     # random until the model is this good
     model_error_threshold: float | None = setting(None, NON_NEGATIVE.or_none())
+    # the Q-network learns reward + coef * the scorer's novelty of each next state (0: the paper's, reward alone)
+    intrinsic_coef: float = setting(0.0, NON_NEGATIVE)
+    # an exploring step's action maximizes novelty + value_weight * Q (0: the paper's, novelty alone)
+    value_weight: float = setting(0.0, NON_NEGATIVE)
 
 
 class DynamicsTraining:
@@ -94,7 +99,7 @@ class PlanningExplorer(EGreedyExplorer):
     """
 
     schema = PlanningExploration
-    log_columns = ("loss_dynamics", "dynamics_val_error")
+    log_columns = ("loss_dynamics", "dynamics_val_error", "intrinsic_reward")
     counters = ("dynamics_updates",)
     scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
@@ -104,12 +109,15 @@ class PlanningExplorer(EGreedyExplorer):
         loss: DynamicsLoss,
         training: DynamicsTraining | None,
         num_members: int | None = None,
+        intrinsic_coef: float | None = None,
     ) -> None:
         super().__init__(policy, policy)
         self.loss = loss
         self.training = training  # None for the oracle, which has nothing to learn
         self.num_members = num_members
+        self.intrinsic_coef = intrinsic_coef
         self.val_error: torch.Tensor | None = None  # float64, [M] in a population
+        self.intrinsic_reward: list[float] | float | None = None  # the last batch's mean (each member's)
 
     @classmethod
     def build(cls, context: ExplorerContext) -> Explorer:
@@ -130,11 +138,18 @@ class PlanningExplorer(EGreedyExplorer):
                 device=context.device,
             )
         novelty = cls.make_novelty(
-            exploration, context.observation_size, batch_shape=context.env.batch_size, device=context.action_spec.device
+            exploration,
+            context.env.observation_spec_unbatched["observation"],
+            batch_shape=context.env.batch_size,
+            device=context.action_spec.device,
         )
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
         policy = ModelBasedExplorationPolicy(
-            context.actor, planner, **eps_schedule(cfg.algo), model_error_threshold=exploration.model_error_threshold
+            context.actor,
+            planner,
+            **eps_schedule(cfg.algo),
+            model_error_threshold=exploration.model_error_threshold,
+            value_weight=exploration.value_weight,
         )
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
@@ -143,18 +158,26 @@ class PlanningExplorer(EGreedyExplorer):
             if isinstance(dynamics, DynamicsModel)
             else None
         )
-        return cls(policy, loss, training, context.num_members)
+        intrinsic_coef = exploration.intrinsic_coef or None
+        if intrinsic_coef is not None:
+            context.env.append_transform(NoveltyReward(novelty))
+        return cls(policy, loss, training, context.num_members, intrinsic_coef)
 
     @classmethod
-    def make_novelty(cls, exploration: DictConfig, observation_size: int, **kwargs) -> scorers.RollingWindowNovelty:
+    def make_novelty(
+        cls, exploration: DictConfig, observation_spec: TensorSpec, **kwargs
+    ) -> scorers.RollingWindowNovelty:
         """The novelty scorer, one window per environment (``kwargs``: ``batch_shape``, ``device``).
 
-        ``scorer(observation_size, window, **options)``, its options the fields
-        the explorer's schema adds to :class:`PlanningExploration` (the kernel's
-        ``bandwidth``, kNN's ``k``).
+        ``scorer(observation_size, window, **options)``, its options :meth:`novelty_options`.
         """
-        options = {name: exploration[name] for name in field_names(cls.schema) - field_names(PlanningExploration)}
-        return cls.scorer(observation_size, exploration.window, **options, **kwargs)
+        options = cls.novelty_options(exploration, observation_spec)
+        return cls.scorer(observation_spec.shape[-1], exploration.window, **options, **kwargs)
+
+    @classmethod
+    def novelty_options(cls, exploration: DictConfig, observation_spec: TensorSpec) -> dict:
+        """The scorer's options: the fields the explorer's schema adds to :class:`PlanningExploration` (the kernel's ``bandwidth``, kNN's ``k``)."""
+        return {name: exploration[name] for name in field_names(cls.schema) - field_names(PlanningExploration)}
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
@@ -167,6 +190,8 @@ class PlanningExplorer(EGreedyExplorer):
             error = self.loss(frames)["loss_dynamics"].double()
         self.val_error = error if self.val_error is None else 0.9 * self.val_error + 0.1 * error
         self.policy.report_model_error(float(self.val_error.max()))  # populations refuse model_error_threshold
+        if self.intrinsic_coef is not None:
+            self.intrinsic_reward = member_means(batch.get(("next", "intrinsic_reward")), self.num_members)
 
     def learn(self, replay_buffer: ReplayBuffer, frames: int, new_frames: int) -> None:
         if self.training is not None:
@@ -177,6 +202,7 @@ class PlanningExplorer(EGreedyExplorer):
         return {
             "loss_dynamics": self.training.last_loss if self.training is not None else None,
             "dynamics_val_error": val_error,
+            "intrinsic_reward": self.intrinsic_reward,
         }
 
     def summary_fields(self) -> dict[str, int]:
@@ -265,3 +291,31 @@ class KernelDensityExplorer(PlanningExplorer):
 
     schema = KernelDensityExploration
     scorer = scorers.KernelDensityNovelty
+
+
+def member_means(values: torch.Tensor, num_members: int | None) -> list[float] | float:
+    """The mean of a collected batch's entry: one per member (the batch is ``[num_envs, M, time, ...]``), or one."""
+    if num_members is None:
+        return float(values.mean())
+    return values.transpose(0, 1).reshape(num_members, -1).mean(-1).tolist()
+
+
+@dataclass
+class CountsExploration(PlanningExploration):
+    name: str = "counts"  # the count bonus 1 / sqrt(n + 1) of each state's bucket
+    window: int | None = setting(None, Rule(WINDOW.test, "an integer >= 2, or null for every visit").or_none())
+    # SimHash's code length for an observation that is not one-hot (a one-hot one is counted exactly, by its hot index)
+    bits: int = setting(16, Rule(lambda v: is_int(v) and 1 <= v <= 24, "an integer from 1 to 24"))
+
+
+class CountsExplorer(PlanningExplorer):
+    """``exploration=counts``: the state whose bucket was visited least (exact on a ``OneHot`` observation, SimHash on others)."""
+
+    schema = CountsExploration
+    scorer = scorers.VisitCounts
+
+    @classmethod
+    def novelty_options(cls, exploration: DictConfig, observation_spec: TensorSpec) -> dict:
+        return {
+            "bits": None if isinstance(observation_spec, OneHot) else exploration.bits
+        }  # MultiOneHot: hashed, jointly

@@ -15,6 +15,7 @@ with its empty slots masked out, since no shape may depend on how many states
 are stored; eagerly it reads exactly the stored states.
 """
 
+from torchrl_mbe.modules.novelty.counts import VisitCounts
 from torchrl_mbe.modules.novelty.gaussian import DiagonalGaussianDensity, RollingGaussianDensity
 from torchrl_mbe.modules.novelty.kernel import GaussianKernelNovelty, KernelDensityNovelty, KNearestNovelty
 from torchrl_mbe.modules.novelty.window import RollingWindowNovelty
@@ -26,4 +27,5 @@ __all__ = [
     "KernelDensityNovelty",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
+    "VisitCounts",
 ]
