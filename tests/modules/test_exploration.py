@@ -240,8 +240,8 @@ def test_a_novelty_reward_scores_each_next_state_against_the_states_the_policy_v
     visited = batch["observation"].reshape(40, 25).argmax(-1).tolist()
     next_cells = batch["next", "observation"].reshape(40, 25)
     expected = [
-        1.0 if not next_cells[step].any() else (visited[: step + 1].count(int(next_cells[step].argmax())) + 1) ** -0.5
+        (visited[: step + 1].count(int(next_cells[step].argmax())) + 1) ** -0.5 if next_cells[step].any() else 0.0
         for step in range(40)
-    ]  # a terminal step's next observation is all zeros: no cell, never visited
+    ]  # a terminal step's next observation is all zeros: no cell, no bonus
     torch.testing.assert_close(batch["next", "intrinsic_reward"].reshape(40), torch.tensor(expected))
     assert counts.counts.sum() == 40  # only the policy writes the counts: each visited state once

@@ -21,7 +21,8 @@ class VisitCounts(RollingWindowNovelty):
     * ``bits=None``: each entry of the state is a bucket, counted by its value. On
       one-hot states (DeepSea's cells, a ``Discrete`` observation) that is the exact
       visit count of each state, read by its hot index; a predicted state that is a
-      probability vector (a categorical dynamics model's) scores the expected bonus.
+      probability vector (a categorical dynamics model's) scores the expected bonus, and
+      a state of zeros (DeepSea's end of an episode) scores 0.
     * ``bits=k``: SimHash (Charikar 2002; Tang et al. 2017): the signs of ``k`` fixed
       random projections of the state are its bucket, one of ``2 ** k``; states in
       nearly the same direction share a bucket. The projections are the same for
@@ -86,13 +87,6 @@ class VisitCounts(RollingWindowNovelty):
         """Each state's SimHash bucket, ``states.shape[:-1]`` (``bits`` set)."""
         return ((states.to(self.projection) @ self.projection > 0).long() * self.powers).sum(-1)
 
-    def visits(self, states: torch.Tensor) -> torch.Tensor:
-        """How often each state's bucket was visited, ``states.shape[:-1]`` (the expected count over a probability vector's entries)."""
-        if self.bits is None:
-            return (states.to(self.counts) * self.counts).sum(-1)
-        code = self.code(states)
-        return self.counts.expand(*code.shape, self.counts.shape[-1]).gather(-1, code.unsqueeze(-1)).squeeze(-1)
-
     def _before_push(self, states: torch.Tensor) -> None:
         """Counts the entering states (``(count, *batch_shape, num_features)``) and uncounts the ones they overwrite in the window."""
         if self.window is not None:
@@ -115,10 +109,20 @@ class VisitCounts(RollingWindowNovelty):
             self.counts.zero_()
 
     def score(self, states: torch.Tensor) -> torch.Tensor:
-        """``1 / sqrt(n + 1)`` of each state's bucket, ``n`` its visits; 1 before any visit."""
+        """``1 / sqrt(n + 1)`` of each state's bucket, ``n`` its visits; 1 before any visit.
+
+        Without ``bits``, each entry's bonus weighted by the state: a one-hot state's own,
+        and a probability vector's expected bonus, so that a prediction spread over cells
+        never visited scores as high as one of them.
+        """
         if self.num_features is None:
             return states.new_ones(states.shape[:-1])
-        return (self.visits(self._check_shape(states)).clamp_min(0) + 1).rsqrt().to(states.dtype)
+        states = self._check_shape(states)
+        if self.bits is None:
+            return (states.to(self.counts) * (self.counts + 1).rsqrt()).sum(-1).to(states.dtype)
+        code = self.code(states)
+        visits = self.counts.expand(*code.shape, self.counts.shape[-1]).gather(-1, code.unsqueeze(-1)).squeeze(-1)
+        return (visits + 1).rsqrt().to(states.dtype)
 
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
         if self.num_features is None and prefix + "counts" in state_dict:  # window=None keeps no states to size from
