@@ -27,7 +27,7 @@ from torchrl.modules import QValueActor
 from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 
 from torchrl_mbe.app.environments import env_options, make_run_env
-from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QEnsemble, explorer_of
+from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QNetwork, explorer_of
 from torchrl_mbe.app.members import select_members
 from torchrl_mbe.app.observation import observation_kind
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
@@ -289,7 +289,8 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     q_input_norm = Standardize(
         observation_size if num_members is None else (num_members, observation_size), device=device
     )
-    ensemble = explorer_class.q_ensemble(cfg.exploration)  # a Bootstrapped DQN's heads, else None
+    q_network = explorer_class.q_network(cfg.exploration)
+    ensemble = q_network.ensemble  # a Bootstrapped DQN's heads, else None
     observation_spec = env.observation_spec_unbatched["observation"]
     actor = make_q_actor(
         observation_size,
@@ -297,9 +298,8 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         algo.num_cells,
         device,
         input_norm=q_input_norm if algo.standardize_inputs else None,
-        noise_std=explorer_class.q_network_noise(cfg.exploration),
         num_members=num_members,
-        ensemble=ensemble,
+        q_network=q_network,
         hot_entries=None if algo.standardize_inputs else hot_entries(observation_spec),
     )
     q_loss = make_q_loss(actor, algo, action_spec, num_members)
@@ -339,20 +339,21 @@ def make_q_actor(
     device: torch.device,
     *,
     input_norm: Standardize | None = None,
-    noise_std: float | None = None,
     num_members: int | None = None,
-    ensemble: QEnsemble | None = None,
+    q_network: QNetwork | None = None,
     hot_entries: int | None = None,
 ) -> QValueActor | BootstrappedQValueActor:
-    """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization).
+    """``QValueActor(MLP)`` with Glorot-uniform weights (the paper's Keras initialization), as the explorer's ``q_network`` asks.
 
     With ``input_norm`` the MLP reads observations standardized by it; with
-    ``noise_std`` the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
-    with ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`);
-    with ``ensemble`` it is a Bootstrapped DQN's (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`,
+    ``num_members`` it is a population's (:func:`~torchrl_mbe.modules.networks.make_population_q_actor`).
+    With ``q_network.noise_std`` (``None``: a plain network) the MLP is a NoisyNet (see :func:`~torchrl_mbe.modules.make_per_action_mlp`);
+    with ``q_network.ensemble`` it is a Bootstrapped DQN's (:class:`~torchrl_mbe.modules.bootstrap.BootstrappedQValueActor`,
     of ``ensemble.num_cells`` in place of ``num_cells``; one ensemble per member with ``num_members``; its
     first layer reads raw one-hot codes by their ``hot_entries`` ones, see :class:`EnsembleQNetwork`).
     """
+    q_network = q_network or QNetwork()
+    ensemble, noise_std = q_network.ensemble, q_network.noise_std
     if ensemble is not None:
         network = EnsembleQNetwork(
             observation_size,

@@ -27,6 +27,7 @@ from torchrl_mbe.app.explorers.base import (
     ExplorerContext,
     NoExploration,
     QEnsemble,
+    QNetwork,
     eps_schedule,
 )
 from torchrl_mbe.app.explorers.baselines import (
@@ -83,6 +84,7 @@ __all__ = [
     "PlanningExploration",
     "PlanningExplorer",
     "QEnsemble",
+    "QNetwork",
     "RNDExploration",
     "RNDExplorer",
     "eps_schedule",

@@ -38,6 +38,13 @@ class QEnsemble(NamedTuple):
     num_cells: list[int]  # each head's (and its prior's) hidden layers
 
 
+class QNetwork(NamedTuple):
+    """The Q-network an explorer acts with, as :func:`~torchrl_mbe.app.dqn.make_q_actor` builds it: plain by default."""
+
+    noise_std: float | None = None  # a NoisyNet's initial noise scale (NoisyNet)
+    ensemble: QEnsemble | None = None  # heads in place of one network (Bootstrapped DQN)
+
+
 @dataclass
 class ExplorerContext:
     """What an explorer is built from: the run's config, the training env and the Q side it explores for."""
@@ -73,14 +80,9 @@ class Explorer:
         return cls(context.actor)
 
     @classmethod
-    def q_network_noise(cls, exploration: DictConfig) -> float | None:
-        """The initial noise scale of a NoisyNet Q-network this explorer needs, or ``None`` for a plain one."""
-        return None
-
-    @classmethod
-    def q_ensemble(cls, exploration: DictConfig) -> QEnsemble | None:
-        """The Q ensemble this explorer acts with (Bootstrapped DQN), or ``None`` for one Q-network (``algo.num_cells``)."""
-        return None
+    def q_network(cls, exploration: DictConfig) -> QNetwork:
+        """The Q-network this explorer acts with: one plain network of ``algo.num_cells`` unless it says otherwise."""
+        return QNetwork()
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:

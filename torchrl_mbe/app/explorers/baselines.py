@@ -13,7 +13,14 @@ from torchrl.envs.transforms import RNDTransform
 from torchrl.modules import MLP, MultiAgentMLP, reset_noise
 from torchrl.objectives import RNDLoss
 
-from torchrl_mbe.app.explorers.base import EGreedyExplorer, ExplorationConfig, Explorer, ExplorerContext, QEnsemble
+from torchrl_mbe.app.explorers.base import (
+    EGreedyExplorer,
+    ExplorationConfig,
+    Explorer,
+    ExplorerContext,
+    QEnsemble,
+    QNetwork,
+)
 from torchrl_mbe.app.optim import GradientStep, adam
 from torchrl_mbe.app.settings import LAYERS, NON_NEGATIVE, POSITIVE, POSITIVE_INT, PROBABILITY, setting
 from torchrl_mbe.envs.transforms import BootstrapHeads, PopulationRNDTransform
@@ -133,8 +140,8 @@ class NoisyExplorer(Explorer):
         return cls(context.actor, context.num_members)
 
     @classmethod
-    def q_network_noise(cls, exploration: DictConfig) -> float | None:
-        return exploration.std_init
+    def q_network(cls, exploration: DictConfig) -> QNetwork:
+        return QNetwork(noise_std=exploration.std_init)
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
         self.policy.apply(self.reset_noise)
@@ -157,7 +164,7 @@ class BootstrapExploration(ExplorationConfig):
 class BootstrapExplorer(Explorer):
     """``exploration=bootstrap``: the ensemble explores by acting with one head per episode (Thompson sampling).
 
-    The Q-network is the ensemble (:meth:`q_ensemble`); the explorer appends
+    The Q-network is the ensemble (:meth:`q_network`); the explorer appends
     :class:`~torchrl_mbe.envs.transforms.BootstrapHeads` to the training env, which draws
     each episode's head and each transition's bootstrap mask.
     """
@@ -172,5 +179,5 @@ class BootstrapExplorer(Explorer):
         return cls(context.actor)
 
     @classmethod
-    def q_ensemble(cls, exploration: DictConfig) -> QEnsemble:
-        return QEnsemble(exploration.num_heads, exploration.prior_scale, list(exploration.num_cells))
+    def q_network(cls, exploration: DictConfig) -> QNetwork:
+        return QNetwork(ensemble=QEnsemble(exploration.num_heads, exploration.prior_scale, list(exploration.num_cells)))
