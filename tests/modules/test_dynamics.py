@@ -423,3 +423,35 @@ def test_a_categorical_model_of_several_variables_predicts_each_one_with_its_own
     assert torch.equal(position_part.argmax(-1), data["next", "observation"][..., :5].argmax(-1))
     assert torch.equal(colour_part.argmax(-1), data["next", "observation"][..., 5:].argmax(-1))
     assert DynamicsLoss(dynamics)(data)["loss_dynamics"].max() < 0.1  # both cross-entropies, summed
+
+
+@pytest.mark.parametrize("num_members", [None, 3])
+@pytest.mark.parametrize("output", ["categorical", "delta"])
+def test_a_model_reading_one_hot_cells_by_their_hot_index_predicts_and_learns_as_the_whole_product(num_members, output):
+    spec, batch = OneHot(2), (16,) if num_members is None else (16, 3)
+    options = {
+        "output": output,
+        "normalize": False,
+        "prior_scale": 25.0,
+        "prior_num_cells": [8],
+        "num_members": num_members,
+    }
+    dense = DynamicsModel(36, spec, [32], **options)
+    sparse = DynamicsModel(36, spec, [32], hot_entries=1, **options)
+    sparse.load_state_dict(dense.state_dict())
+    cells = torch.nn.functional.one_hot(torch.randint(36, batch), 36).float()
+    action, target = spec.rand(batch), torch.randn(*batch, 36)
+    for model in (dense, sparse):
+        ((model.predict(cells, action) - target) ** 2).mean().backward()
+    torch.testing.assert_close(sparse.predict(cells, action), dense.predict(cells, action))
+    for dense_parameter, sparse_parameter in zip(dense.net.parameters(), sparse.net.parameters(), strict=True):
+        torch.testing.assert_close(sparse_parameter.grad, dense_parameter.grad)
+    spread = torch.softmax(torch.randn(*batch, 36), -1)  # a prediction rolled on (horizon > 1): the whole product
+    torch.testing.assert_close(sparse.predict(spread, action), dense.predict(spread, action))
+    if num_members is None:  # the columns of cells not in the batch are never read
+        unread = min(set(range(36)) - set(cells.argmax(-1).tolist()))
+        with torch.no_grad():
+            sparse.net[0].weight[:, unread] = float("nan")
+        assert sparse.predict(cells, action).isfinite().all()
+    with pytest.raises(ValueError, match="hot_entries reads raw one-hot codes"):
+        DynamicsModel(36, spec, hot_entries=1)

@@ -29,13 +29,12 @@ from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
 from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QNetwork, explorer_of
 from torchrl_mbe.app.members import select_members
-from torchrl_mbe.app.observation import observation_kind
 from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
 from torchrl_mbe.app.population import Resumable, StopOnInterrupt, open_population, start_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
-from torchrl_mbe.modules.dynamics import categorical_groups
+from torchrl_mbe.modules.dynamics import hot_entries
 from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.modules.normalization import Standardize
 from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
@@ -381,13 +380,6 @@ def make_q_actor(
     if input_norm is not None:
         network = nn.Sequential(input_norm, network)
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
-
-
-def hot_entries(observation_spec: TensorSpec) -> int | None:
-    """How many ones a one-hot observation (``OneHot``, ``MultiOneHot``) holds: one per variable; ``None`` for any other."""
-    if observation_kind(observation_spec) != "one-hot":
-        return None
-    return len(categorical_groups(observation_spec))
 
 
 def make_q_loss(

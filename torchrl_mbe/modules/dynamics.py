@@ -8,11 +8,11 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import nn
-from torchrl.data import Composite, MultiOneHot, ReplayBuffer, TensorSpec
+from torchrl.data import Composite, MultiOneHot, OneHot, ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
-from torchrl_mbe.modules.networks import init_linear_layers, make_members_mlp
+from torchrl_mbe.modules.networks import MembersMLP, init_linear_layers, make_members_mlp
 from torchrl_mbe.modules.normalization import Standardize
 
 __all__ = [
@@ -21,6 +21,7 @@ __all__ = [
     "action_indices",
     "categorical_groups",
     "check_output",
+    "hot_entries",
     "num_discrete_actions",
     "one_hot_actions",
 ]  # the action helpers live in .actions
@@ -36,6 +37,20 @@ def check_output(output: str, normalize: bool) -> None:
         raise ValueError(
             "output='categorical' predicts probabilities over the observation's entries in raw units; pass normalize=False."
         )
+
+
+def hot_entries(observation_spec: TensorSpec) -> int | None:
+    """How many ones a one-hot observation (``OneHot``, ``MultiOneHot``) holds: one per variable; ``None`` for any other.
+
+    Examples:
+        >>> from torchrl.data import MultiOneHot, OneHot, Unbounded
+        >>> from torchrl_mbe.modules.dynamics import hot_entries
+        >>> hot_entries(OneHot(9)), hot_entries(MultiOneHot([4, 3])), hot_entries(Unbounded(2))
+        (1, 2, None)
+    """
+    if not isinstance(observation_spec, (OneHot, MultiOneHot)):
+        return None
+    return len(categorical_groups(observation_spec))
 
 
 def categorical_groups(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> tuple[int, ...]:
@@ -186,6 +201,13 @@ class DynamicsModel(TensorDictModuleBase):
             softmax; where it has none the prediction lands off every cell, as a
             delta model's does (a softmax alone puts an untried action's next cell
             on a visited one).
+        hot_entries (int, optional): the number of ones of a one-hot observation
+            (1 for DeepSea's cells, one per group of a ``MultiOneHot``), read in raw
+            units (``normalize=False``): the first layers of the network and of its
+            prior then add the weight columns of those entries and of the action
+            instead of multiplying the whole vector, the same values to float
+            rounding. An input that is not such a code (a prediction the planner
+            rolls on with ``horizon > 1``) takes the whole product.
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -231,10 +253,14 @@ class DynamicsModel(TensorDictModuleBase):
         prior_num_cells: Sequence[int] | None = None,
         normalize: bool = True,
         output: str = "delta",
+        hot_entries: int | None = None,
         device: torch.device | str | None = None,
     ) -> None:
         super().__init__()
         check_output(output, normalize)
+        if hot_entries is not None and normalize:
+            raise ValueError("hot_entries reads raw one-hot codes: pass normalize=False with it.")
+        self.hot_entries = hot_entries
         groups = categorical_groups(observation_size, observation_key)
         observation_size = _observation_size(observation_size, observation_key)
         prior_num_cells = list(num_cells if prior_num_cells is None else prior_num_cells)
@@ -302,16 +328,35 @@ class DynamicsModel(TensorDictModuleBase):
         normalized = self.observation_norm(observation)
         return torch.cat([normalized, one_hot_actions(action, self.action_spec).to(normalized)], -1)
 
+    def _outputs(self, observation: torch.Tensor, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """The network's and the prior's outputs (``None`` without a prior), on the hot entries of a one-hot ``observation`` where it is one."""
+        hot = self._hot_inputs(observation, action)
+        if hot is None:
+            inputs = self._inputs(observation, action)
+            return self.net(inputs), None if self.prior is None else self.prior(inputs)
+        return _on_hot_inputs(self.net, hot), None if self.prior is None else _on_hot_inputs(self.prior, hot)
+
+    def _hot_inputs(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor | None:
+        """The indices ``[*B, hot_entries + 1]`` of the input's ones (the observation's, then the action's), or ``None``: no ``hot_entries``, or an observation that is not such a code."""
+        if self.hot_entries is None:
+            return None
+        is_code = ((observation == 0) | (observation == 1)).all() and (observation.sum(-1) == self.hot_entries).all()
+        if not is_code:
+            return None
+        action_index = action_indices(action, self.action_spec).expand(observation.shape[:-1])
+        return torch.cat(
+            [observation.topk(self.hot_entries, dim=-1).indices, self.observation_size + action_index.unsqueeze(-1)], -1
+        )
+
     def categorical_parts(
         self, observation: torch.Tensor, action: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor | None]:
         """A categorical model's logits (one per feature, the last for zeros) and its offset (the trained offset plus the prior; ``None`` without a prior)."""
-        inputs = self._inputs(observation, action)
-        output = self.net(inputs)
-        if self.prior is None:
+        output, prior = self._outputs(observation, action)
+        if prior is None:
             return output, None
         logits, offset = output.split([self._padding.numel(), self.observation_size], -1)
-        return logits, offset + self.prior_scale * self.prior(inputs)
+        return logits, offset + self.prior_scale * prior
 
     def grouped_logits(self, logits: torch.Tensor) -> torch.Tensor:
         """A categorical model's logits as ``[*, W, G]``: a column per group, its entries, ``-inf`` padding, and its class of zeros last."""
@@ -340,10 +385,9 @@ class DynamicsModel(TensorDictModuleBase):
         """Predicted next observation for tensors (actions encoded as the spec encodes them)."""
         if self.output == "categorical":
             return self.categorical_prediction(*self.categorical_parts(observation, action))
-        inputs = self._inputs(observation, action)
-        output = self.net(inputs)
-        if self.prior is not None:
-            output = output + self.prior_scale * self.prior(inputs)
+        output, prior = self._outputs(observation, action)
+        if prior is not None:
+            output = output + self.prior_scale * prior
         return observation + self.delta_norm.loc + self.delta_norm.scale * output
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -422,3 +466,23 @@ def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, to
         entry_index.extend(range(column, size * len(groups), len(groups)))
     group_of_entry = torch.repeat_interleave(torch.arange(len(groups)), torch.tensor(groups))
     return padding, torch.tensor(entry_index, dtype=torch.long), group_of_entry
+
+
+def _on_hot_inputs(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
+    """An MLP's (or a population's ``MembersMLP``'s) output on one-hot inputs given by their hot entries ``hot`` ``[*B, E]``.
+
+    The first layer sums the hot entries' weight columns, which is its product with the
+    inputs; the rest of the network takes it from there.
+    """
+    if isinstance(network, MembersMLP) and network.batched_products:
+        first = network.params["0"]
+        members = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [M, 1]
+        hidden = first["weight"][members, :, hot].sum(-2) + first["bias"]  # [*B, M, E, C] summed: [*B, M, C]
+        return network.forward_from(hidden, 1)
+    if isinstance(network, nn.Sequential) and isinstance(network[0], nn.Linear):
+        first, *rest = network
+        hidden = first.weight.T[hot].sum(-2) + first.bias
+        for module in rest:
+            hidden = module(hidden)
+        return hidden
+    raise TypeError(f"hot_entries needs an MLP whose first module is a linear layer, got {type(network).__name__}.")

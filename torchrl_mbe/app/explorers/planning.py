@@ -24,7 +24,7 @@ from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule,
 from torchrl_mbe.envs import resolve_env_id, task_of
 from torchrl_mbe.envs.transforms import NoveltyReward
 from torchrl_mbe.modules import novelty as scorers
-from torchrl_mbe.modules.dynamics import DynamicsModel
+from torchrl_mbe.modules.dynamics import DynamicsModel, hot_entries
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
 from torchrl_mbe.modules.planner import NoveltyPlanner
 from torchrl_mbe.objectives import DynamicsLoss
@@ -135,6 +135,9 @@ class PlanningExplorer(EGreedyExplorer):
                 prior_num_cells=cfg.dynamics.prior_num_cells,
                 normalize=cfg.dynamics.normalize,
                 output=cfg.dynamics.output,
+                hot_entries=None
+                if cfg.dynamics.normalize
+                else hot_entries(context.env.observation_spec_unbatched["observation"]),
                 device=context.device,
             )
         novelty = cls.make_novelty(
