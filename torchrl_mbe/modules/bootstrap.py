@@ -21,7 +21,7 @@ from torchrl.data import TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import QValueModule
 
-from torchrl_mbe.modules.networks import make_members_mlp
+from torchrl_mbe.modules.networks import forward_on_hot_entries, make_members_mlp
 
 __all__ = ["BootstrappedQValueActor", "EnsembleQNetwork", "HeadSelector"]
 
@@ -114,7 +114,7 @@ class EnsembleQNetwork(nn.Module):
             observation = self._stacked(observation)
             return self.trainable(observation) + self.prior_scale * self.prior(observation)
         hot = self._stacked(_hot_entries(observation, self.hot_entries))  # found before an expanded view is copied
-        return _on_hot_entries(self.trainable, hot) + self.prior_scale * _on_hot_entries(self.prior, hot)
+        return forward_on_hot_entries(self.trainable, hot) + self.prior_scale * forward_on_hot_entries(self.prior, hot)
 
     def _stacked(self, per_head: torch.Tensor) -> torch.Tensor:
         """A population's ``[*B, M, K, ...]`` as its stacked heads' ``[*B, M * K, ...]``; one ensemble's as it is."""
@@ -138,18 +138,6 @@ def _hot_entries(observation: torch.Tensor, count: int) -> torch.Tensor:
     if observation.stride(-2) == 0:  # one observation expanded to every head: its rows are one row
         return observation[..., :1, :].topk(count, dim=-1).indices.expand(*observation.shape[:-1], count)
     return observation.topk(count, dim=-1).indices
-
-
-def _on_hot_entries(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
-    """A ``make_members_mlp`` network's ``[*B, H, A]`` output on one-hot codes given by their hot entries ``[*B, H, E]``.
-
-    The first layer sums the hot entries' weight columns (its product with the codes);
-    the rest of the network takes it from there (:meth:`~torchrl_mbe.modules.networks.MembersMLP.forward_from`).
-    """
-    first = network.params["0"]
-    heads = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [H, 1]
-    hidden = first["weight"][heads, :, hot].sum(-2) + first["bias"]  # [*B, H, hot, C] summed: [*B, H, C]
-    return network.forward_from(hidden, 1)
 
 
 class _AllHeads(nn.Module):

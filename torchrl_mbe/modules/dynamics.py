@@ -12,7 +12,7 @@ from torchrl.data import Composite, MultiOneHot, OneHot, ReplayBuffer, TensorSpe
 from torchrl.modules import MLP
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
-from torchrl_mbe.modules.networks import MembersMLP, init_linear_layers, make_members_mlp
+from torchrl_mbe.modules.networks import forward_on_hot_entries, init_linear_layers, make_members_mlp
 from torchrl_mbe.modules.normalization import Standardize
 
 __all__ = [
@@ -334,7 +334,9 @@ class DynamicsModel(TensorDictModuleBase):
         if hot is None:
             inputs = self._inputs(observation, action)
             return self.net(inputs), None if self.prior is None else self.prior(inputs)
-        return _on_hot_inputs(self.net, hot), None if self.prior is None else _on_hot_inputs(self.prior, hot)
+        return forward_on_hot_entries(self.net, hot), None if self.prior is None else forward_on_hot_entries(
+            self.prior, hot
+        )
 
     def _hot_inputs(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor | None:
         """The indices ``[*B, hot_entries + 1]`` of the input's ones (the observation's, then the action's), or ``None``: no ``hot_entries``, or an observation that is not such a code."""
@@ -466,23 +468,3 @@ def _group_layout(groups: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor, to
         entry_index.extend(range(column, size * len(groups), len(groups)))
     group_of_entry = torch.repeat_interleave(torch.arange(len(groups)), torch.tensor(groups))
     return padding, torch.tensor(entry_index, dtype=torch.long), group_of_entry
-
-
-def _on_hot_inputs(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
-    """An MLP's (or a population's ``MembersMLP``'s) output on one-hot inputs given by their hot entries ``hot`` ``[*B, E]``.
-
-    The first layer sums the hot entries' weight columns, which is its product with the
-    inputs; the rest of the network takes it from there.
-    """
-    if isinstance(network, MembersMLP) and network.batched_products:
-        first = network.params["0"]
-        members = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [M, 1]
-        hidden = first["weight"][members, :, hot].sum(-2) + first["bias"]  # [*B, M, E, C] summed: [*B, M, C]
-        return network.forward_from(hidden, 1)
-    if isinstance(network, nn.Sequential) and isinstance(network[0], nn.Linear):
-        first, *rest = network
-        hidden = first.weight.T[hot].sum(-2) + first.bias
-        for module in rest:
-            hidden = module(hidden)
-        return hidden
-    raise TypeError(f"hot_entries needs an MLP whose first module is a linear layer, got {type(network).__name__}.")

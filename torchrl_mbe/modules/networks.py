@@ -17,6 +17,7 @@ from torchrl.modules import MLP, MultiAgentMLP, NoisyLinear, QValueActor
 
 __all__ = [
     "MembersMLP",
+    "forward_on_hot_entries",
     "init_linear_layers",
     "make_members_mlp",
     "make_per_action_mlp",
@@ -281,6 +282,30 @@ def make_members_mlp(
             _each_member(nn.init.zeros_),
         )
     return network
+
+
+def forward_on_hot_entries(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:
+    """An MLP's (or a ``MembersMLP``'s) output on one-hot inputs given by the indices of their ones, ``hot`` ``[*B, (M,) E]``.
+
+    The first layer sums the hot entries' weight columns, which is its product with the
+    inputs; the rest of the network takes it from there (a ``MembersMLP``'s
+    :meth:`~MembersMLP.forward_from`).
+
+    Raises:
+        TypeError: ``network`` is neither a batched-products ``MembersMLP`` nor a sequence that starts with a linear layer.
+    """
+    if isinstance(network, MembersMLP) and network.batched_products:
+        first = network.params["0"]
+        members = torch.arange(hot.shape[-2], device=hot.device).unsqueeze(-1)  # [M, 1]
+        hidden = first["weight"][members, :, hot].sum(-2) + first["bias"]  # [*B, M, E, C] summed: [*B, M, C]
+        return network.forward_from(hidden, 1)
+    if isinstance(network, nn.Sequential) and isinstance(network[0], nn.Linear):
+        first, *rest = network
+        hidden = first.weight.T[hot].sum(-2) + first.bias
+        for module in rest:
+            hidden = module(hidden)
+        return hidden
+    raise TypeError(f"hot entries need an MLP whose first module is a linear layer, got {type(network).__name__}.")
 
 
 def reset_members_noise(module: nn.Module) -> None:
