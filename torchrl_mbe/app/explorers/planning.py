@@ -306,7 +306,7 @@ def member_means(values: torch.Tensor, num_members: int | None) -> list[float] |
 @dataclass
 class CountsExploration(PlanningExploration):
     name: str = "counts"  # the count bonus 1 / sqrt(n + 1) of each state's bucket
-    window: int | None = setting(None, Rule(WINDOW.test, "an integer >= 2, or null for every visit").or_none())
+    window: int | None = setting(None, WINDOW.or_none())  # null: every visit counts
     # SimHash's code length for an observation that is not one-hot (a one-hot one is counted exactly, by its hot index)
     bits: int = setting(16, Rule(lambda v: is_int(v) and 1 <= v <= 24, "an integer from 1 to 24"))
 
