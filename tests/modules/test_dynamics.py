@@ -448,6 +448,8 @@ def test_a_model_reading_one_hot_cells_by_their_hot_index_predicts_and_learns_as
         torch.testing.assert_close(sparse_parameter.grad, dense_parameter.grad)
     spread = torch.softmax(torch.randn(*batch, 36), -1)  # a prediction rolled on (horizon > 1): the whole product
     torch.testing.assert_close(sparse.predict(spread, action), dense.predict(spread, action))
+    compiled = torch.compile(sparse.predict, fullgraph=True, backend="aot_eager")  # as a compiled policy calls it
+    torch.testing.assert_close(compiled(cells, action), dense.predict(cells, action))
     if num_members is None:  # the columns of cells not in the batch are never read
         unread = min(set(range(36)) - set(cells.argmax(-1).tolist()))
         with torch.no_grad():

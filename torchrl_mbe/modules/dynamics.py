@@ -207,7 +207,7 @@ class DynamicsModel(TensorDictModuleBase):
             prior then add the weight columns of those entries and of the action
             instead of multiplying the whole vector, the same values to float
             rounding. An input that is not such a code (a prediction the planner
-            rolls on with ``horizon > 1``) takes the whole product.
+            rolls on with ``horizon > 1``), and a compiled call, take the whole product.
         device (torch.device, optional): where parameters and buffers live.
 
     Examples:
@@ -339,8 +339,13 @@ class DynamicsModel(TensorDictModuleBase):
         )
 
     def _hot_inputs(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor | None:
-        """The indices ``[*B, hot_entries + 1]`` of the input's ones (the observation's, then the action's), or ``None``: no ``hot_entries``, or an observation that is not such a code."""
-        if self.hot_entries is None:
+        """The indices ``[*B, hot_entries + 1]`` of the input's ones (the observation's, then the action's), or ``None``.
+
+        ``None`` without ``hot_entries``, for an observation that is not such a code, and
+        compiled (``torch.compile(fullgraph=True)``, as a Collector's ``compile_policy``),
+        where no branch may depend on the data: the whole product then.
+        """
+        if self.hot_entries is None or torch.compiler.is_compiling():
             return None
         is_code = ((observation == 0) | (observation == 1)).all() and (observation.sum(-1) == self.hot_entries).all()
         if not is_code:
