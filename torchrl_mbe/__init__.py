@@ -26,7 +26,7 @@ from torchrl_mbe.modules import (
     RollingWindowNovelty,
     VisitCounts,
 )
-from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
 
 __all__ = [
     "SUPPORTED_ENVS",
@@ -41,6 +41,7 @@ __all__ = [
     "ModelBasedExplorationPolicy",
     "MountainCarDynamics",
     "NoveltyPlanner",
+    "NoveltyValueLoss",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
     "VisitCounts",

@@ -454,6 +454,22 @@ def test_visit_counts_give_each_one_hot_state_the_bonus_of_its_visits_in_the_win
     assert every.score(cells).argmax() == 4  # never visited: the highest bonus, 1
 
 
+def test_visit_counts_read_a_prediction_off_the_cells_as_a_distribution_over_its_positive_entries():
+    counts = VisitCounts(4)
+    counts.update(torch.eye(4)[[0, 0, 0, 1]])  # bonuses 0.5, 0.71, 1, 1
+    bonus = (counts.counts + 1).rsqrt()
+    predictions = torch.tensor(
+        [
+            [0.5, 0.5, 0.0, 0.0],  # a probability vector: its expected bonus
+            [0.9, 0.0, -0.6, 0.0],  # an offset pushed an entry negative: it weighs nothing
+            [3.0, 0.0, 1.0, 0.0],  # positive entries summing past 1: scaled to a distribution
+            [0.0, 0.0, 0.0, 0.0],  # DeepSea's zeros after the last row
+        ]
+    )
+    expected = torch.stack([bonus[:2].mean(), 0.9 * bonus[0], 0.75 * bonus[0] + 0.25 * bonus[2], torch.tensor(0.0)])
+    torch.testing.assert_close(counts.score(predictions), expected)
+
+
 def test_visit_counts_hash_near_states_together_and_restore_into_a_fresh_scorer():
     counts = VisitCounts(3, bits=12)
     states = torch.randn(40, 3)

@@ -19,17 +19,18 @@ from pathlib import Path
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.data import ReplayBuffer, TensorDictPrioritizedReplayBuffer, TensorSpec
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.modules import QValueActor
-from torchrl.objectives import DQNLoss, HardUpdate, SoftUpdate, TargetNetUpdater
+from torchrl.objectives import DQNLoss, TargetNetUpdater
 
 from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QNetwork, explorer_of
 from torchrl_mbe.app.members import select_members
-from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
+from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam, make_target_updater
 from torchrl_mbe.app.population import Resumable, StopOnInterrupt, open_population, start_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
@@ -302,8 +303,31 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
         hot_entries=None if algo.standardize_inputs else hot_entries(observation_spec),
     )
     q_loss = make_q_loss(actor, algo, action_spec, num_members)
+    novelty_value = (
+        make_novelty_value_network(
+            make_q_actor(
+                observation_size,
+                action_spec,
+                algo.num_cells,
+                device,
+                input_norm=q_input_norm if algo.standardize_inputs else None,
+                num_members=num_members,
+            )
+        )
+        if q_network.novelty_value
+        else None
+    )
     context = ExplorerContext(
-        cfg, env, actor, q_loss, action_spec, observation_size, device, num_members, env_options(cfg.env)
+        cfg,
+        env,
+        actor,
+        q_loss,
+        action_spec,
+        observation_size,
+        device,
+        num_members,
+        env_options(cfg.env),
+        novelty_value,
     )
     explorer = explorer_class.build(context)
     loss_key = "member_loss" if isinstance(q_loss, PopulationDQNLoss) else "loss"
@@ -382,6 +406,15 @@ def make_q_actor(
     return QValueActor(network, spec=action_spec, in_keys=["observation"])
 
 
+def make_novelty_value_network(actor: QValueActor) -> TensorDictModule:
+    """A plain Q actor's network as the value of novelty ``U``: observation to ``"novelty_value"``, one per action.
+
+    Built by :func:`make_q_actor`, so it reads the observation as the Q-network does (its input
+    statistics, a population's members).
+    """
+    return TensorDictModule(actor.module[0].module, in_keys=actor.module[0].in_keys, out_keys=["novelty_value"])
+
+
 def make_q_loss(
     actor: QValueActor | BootstrappedQValueActor, algo: DictConfig, action_spec: TensorSpec, num_members: int | None
 ) -> DQNLoss:
@@ -404,13 +437,6 @@ def make_q_loss(
     q_loss.make_value_estimator(gamma=algo.gamma)  # with n-step transitions it discounts by gamma ** steps_to_next_obs
     _ = q_loss.in_keys
     return q_loss
-
-
-def make_target_updater(algo: DictConfig, q_loss: DQNLoss) -> TargetNetUpdater:
-    """TorchRL's ``HardUpdate`` (copy every N updates) or ``SoftUpdate`` (Polyak)."""
-    if algo.target_update == "hard":
-        return HardUpdate(q_loss, value_network_update_interval=algo.hard_update_interval)
-    return SoftUpdate(q_loss, tau=algo.soft_update_tau)
 
 
 def q_learning_rate(schedule: DQNSettings | DictConfig, frames: int) -> float:

@@ -6,9 +6,11 @@ import logging
 from collections.abc import Iterable
 
 import torch
+from omegaconf import DictConfig
 from tensordict import TensorDictBase
+from torchrl.objectives import HardUpdate, LossModule, SoftUpdate, TargetNetUpdater
 
-__all__ = ["GradientStep", "UpdateSchedule", "adam", "clip_grad_norm_per_member_"]
+__all__ = ["GradientStep", "UpdateSchedule", "adam", "clip_grad_norm_per_member_", "make_target_updater"]
 
 log = logging.getLogger(__name__)
 
@@ -22,6 +24,13 @@ def adam(parameters, lr: float) -> torch.optim.Adam:
     few per parameter.
     """
     return torch.optim.Adam([parameter for parameter in parameters if parameter.requires_grad], lr=lr, fused=True)
+
+
+def make_target_updater(algo: DictConfig, loss: LossModule) -> TargetNetUpdater:
+    """TorchRL's ``HardUpdate`` (copy every ``algo.hard_update_interval`` updates) or ``SoftUpdate`` (Polyak) of a loss's target network."""
+    if algo.target_update == "hard":
+        return HardUpdate(loss, value_network_update_interval=algo.hard_update_interval)
+    return SoftUpdate(loss, tau=algo.soft_update_tau)
 
 
 class UpdateSchedule:

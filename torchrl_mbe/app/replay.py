@@ -19,6 +19,7 @@ from torchrl_mbe.rundir import CHECKPOINT
 
 __all__ = [
     "SUCCESSOR_KEY",
+    "SUCCESSOR_TERMINATED_KEY",
     "PopulationReplayBuffer",
     "ReplayState",
     "ReplayTransitions",
@@ -30,6 +31,8 @@ __all__ = [
 
 SUCCESSOR_KEY = "successor_observation"
 """The observation one step later, which the dynamics model learns (``("next", "observation")`` is n steps later)."""
+SUCCESSOR_TERMINATED_KEY = "successor_terminated"
+"""Whether the observation one step later ended the episode (the value of novelty stops there)."""
 
 
 OBSERVATIONS_PER_TRANSITION = 3  # the observation, the one n steps on, and the one-step successor (SUCCESSOR_KEY)
@@ -254,8 +257,9 @@ def flatten_frames(frames: TensorDictBase, num_members: int | None = None) -> Te
 
 
 def one_step_transitions(frames: TensorDictBase, extra_keys: tuple = ()) -> TensorDictBase:
-    """The keys the losses read from collected ``frames`` (and ``extra_keys``), with the one-step successor the dynamics model learns."""
+    """The keys the losses read from collected ``frames`` (and ``extra_keys``), with the one-step successor the dynamics model learns and whether it ended the episode."""
     transitions = frames.select(*ReplayTransitions.KEYS, *extra_keys)
+    transitions.set(SUCCESSOR_TERMINATED_KEY, transitions.get(("next", "terminated")))
     return transitions.set(SUCCESSOR_KEY, transitions.get(("next", "observation")))
 
 

@@ -5,14 +5,14 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
-from tensordict import NestedKey, TensorDictBase
+from tensordict import NestedKey, TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import expand_as_right
 from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import EGreedyModule
 
-from torchrl_mbe.modules.planner import NoveltyPlanner, random_argmax
+from torchrl_mbe.modules.planner import NoveltyPlanner, random_argmax, reachable_novelty
 
 __all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy", "check_eps_schedule"]
 
@@ -117,6 +117,12 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
             ``novelty + value_weight * action_value``: the planner's one-step novelty
             plus the actor's Q-values, which carry novelty further when the Q-network
             learns an intrinsic reward. Defaults to ``0`` (the paper: novelty alone).
+        novelty_value (TensorDictModuleBase, optional): ``U``, the discounted novelty
+            beyond each action's predicted next state (observation to one value per action,
+            learned with :class:`~torchrl_mbe.objectives.NoveltyValueLoss`); an exploring step
+            then scores ``max(novelty, U) + value_weight * action_value``
+            (:func:`~torchrl_mbe.modules.planner.reachable_novelty`). Defaults to ``None``
+            (the paper: the next state's novelty alone).
         action_key (NestedKey): the action entry. Defaults to ``"action"``.
 
     Examples:
@@ -146,6 +152,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         schedule: Literal["linear", "exponential"] = "linear",
         model_error_threshold: float | None = None,
         value_weight: float = 0.0,
+        novelty_value: TensorDictModuleBase | None = None,
         action_key: NestedKey = "action",
     ) -> None:
         device = planner.candidate_actions.device
@@ -162,6 +169,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         self.planner = planner
         self.model_error_threshold = model_error_threshold
         self.value_weight = float(value_weight)
+        self.novelty_value = novelty_value
         self.observation_key = planner.in_keys[0]
         self.in_keys = list(dict.fromkeys([*actor.in_keys, self.observation_key]))
         self.out_keys = list(actor.out_keys)
@@ -211,10 +219,15 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
 
     def _planned_action(self, tensordict: TensorDictBase) -> torch.Tensor:
         observation = tensordict.get(self.observation_key)
-        if not self.value_weight:
+        if not self.value_weight and self.novelty_value is None:
             action, _ = self.planner.plan(observation)
             return action
-        scores = self.planner.action_scores(observation) + self.value_weight * tensordict.get("action_value")
+        scores = self.planner.action_scores(observation)
+        if self.novelty_value is not None:
+            inputs = TensorDict({self.novelty_value.in_keys[0]: observation}, observation.shape[:-1])
+            scores = reachable_novelty(scores, self.novelty_value(inputs).get(self.novelty_value.out_keys[0]))
+        if self.value_weight:
+            scores = scores + self.value_weight * tensordict.get("action_value")
         return self.planner.actions_at(random_argmax(scores))
 
     def _random_action(self, tensordict: TensorDictBase) -> torch.Tensor:

@@ -10,7 +10,7 @@ from torchrl.data import OneHot, TensorSpec
 from torchrl_mbe.modules.actions import discrete_action_spec, num_discrete_actions
 from torchrl_mbe.modules.novelty import RollingWindowNovelty
 
-__all__ = ["NoveltyPlanner", "random_argmax"]
+__all__ = ["NoveltyPlanner", "random_argmax", "reachable_novelty"]
 
 
 def random_argmax(scores: torch.Tensor, dim: int = -1) -> torch.Tensor:
@@ -21,6 +21,23 @@ def random_argmax(scores: torch.Tensor, dim: int = -1) -> torch.Tensor:
     """
     is_best = scores == scores.amax(dim, keepdim=True)
     return (torch.rand_like(scores, dtype=torch.float32) * is_best).argmax(dim)
+
+
+def reachable_novelty(next_novelty: torch.Tensor, beyond: torch.Tensor) -> torch.Tensor:
+    """The novelty of the rarest state an action reaches: its predicted next state's, or the discounted novelty beyond it.
+
+    ``S(s, a) = max(n(D(s, a)), U(s, a))``, the score of deep model-based exploration
+    (:class:`~torchrl_mbe.objectives.NoveltyValueLoss` learns ``U``). A maximum, not a sum:
+    a path's value is the rarest state on it, so paths already walked do not add up their
+    leftover novelty and outweigh one state never seen.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl_mbe.modules.planner import reachable_novelty
+        >>> reachable_novelty(torch.tensor([0.9, 0.1]), torch.tensor([0.5, 0.7]))
+        tensor([0.9000, 0.7000])
+    """
+    return torch.maximum(next_novelty, beyond)
 
 
 class NoveltyPlanner(TensorDictModuleBase):
@@ -144,11 +161,34 @@ class NoveltyPlanner(TensorDictModuleBase):
     @torch.no_grad()
     def action_scores(self, observation: torch.Tensor) -> torch.Tensor:
         """Novelty score of each first action, shape ``(*batch, num_actions)``."""
-        sequences = self._action_sequences()
-        final_states = self._rollout(observation, sequences)
-        sequence_scores = self.novelty.score(final_states)
-        best_per_first_action = sequence_scores.unflatten(0, (-1, self.num_actions)).amax(0)
-        return best_per_first_action.movedim(0, -1)
+        return self._best_per_first_action(self.novelty.score(self._rollout(observation, self._action_sequences())))
+
+    @torch.no_grad()
+    def replayed_action_scores(self, observation: torch.Tensor) -> torch.Tensor:
+        """Novelty score of each first action from observations of no one env (a replay buffer's), ``(B, *members, num_actions)``.
+
+        ``observation`` is ``(B, F)``, or ``(B, M, F)`` for a scorer of ``batch_shape``
+        ``(E, M)``. Each prediction is scored against every env's window and the scores
+        are averaged over the ``E`` envs.
+
+        Examples:
+            >>> import torch
+            >>> from torchrl.data import OneHot
+            >>> from torchrl_mbe import DynamicsModel, NoveltyPlanner, VisitCounts
+            >>> planner = NoveltyPlanner(DynamicsModel(2, OneHot(3)), VisitCounts(2, batch_shape=[4]), OneHot(3))
+            >>> planner.replayed_action_scores(torch.zeros(8, 2)).shape  # 8 replayed states, 4 envs' counts
+            torch.Size([8, 3])
+        """
+        final_states = self._rollout(observation, self._action_sequences())  # (sequences, B, *members, F)
+        batch_shape = self.novelty.batch_shape
+        if not batch_shape:
+            return self._best_per_first_action(self.novelty.score(final_states))
+        each_env = final_states.unsqueeze(2).expand(*final_states.shape[:2], batch_shape[0], *final_states.shape[2:])
+        return self._best_per_first_action(self.novelty.score(each_env).mean(2))
+
+    def _best_per_first_action(self, sequence_scores: torch.Tensor) -> torch.Tensor:
+        """Each first action's best sequence score, ``(*batch, num_actions)``, from ``(num_sequences, *batch)``."""
+        return sequence_scores.unflatten(0, (-1, self.num_actions)).amax(0).movedim(0, -1)
 
     def _action_sequences(self) -> torch.Tensor:
         """Action indices, shape ``(num_sequences, horizon)``; sequence ``i`` starts with action ``i % num_actions``."""

@@ -41,6 +41,8 @@ from torchrl_mbe.app.explorers.baselines import (
 from torchrl_mbe.app.explorers.planning import (
     CountsExploration,
     CountsExplorer,
+    DeepExploration,
+    DeepExplorer,
     DiagonalExploration,
     DiagonalExplorer,
     DynamicsTraining,
@@ -62,6 +64,8 @@ __all__ = [
     "BootstrapExplorer",
     "CountsExploration",
     "CountsExplorer",
+    "DeepExploration",
+    "DeepExplorer",
     "DiagonalExploration",
     "DiagonalExplorer",
     "DynamicsTraining",
@@ -103,6 +107,7 @@ EXPLORERS: dict[str, type[Explorer]] = {
         KNearestExplorer,
         KernelDensityExplorer,
         CountsExplorer,
+        DeepExplorer,
         RNDExplorer,
         NoisyExplorer,
         BootstrapExplorer,
@@ -110,7 +115,7 @@ EXPLORERS: dict[str, type[Explorer]] = {
         Explorer,
     )
 }
-"""Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde, counts),
+"""Every ``exploration=`` option by name: the planning ones (gaussian, kernel, diagonal, knn, kde, counts, deep),
 TorchRL's RND and NoisyNet, Bootstrapped DQN with priors, e-greedy (random exploring actions) and none (never explores)."""
 
 

@@ -9,7 +9,7 @@ from typing import ClassVar, NamedTuple
 import torch
 from omegaconf import MISSING, DictConfig
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModuleBase, TensorDictSequential
+from tensordict.nn import TensorDictModule, TensorDictModuleBase, TensorDictSequential
 from torchrl.data import ReplayBuffer, TensorSpec
 from torchrl.envs import TransformedEnv
 from torchrl.modules import QValueActor
@@ -43,6 +43,9 @@ class QNetwork(NamedTuple):
 
     noise_std: float | None = None  # a NoisyNet's initial noise scale (NoisyNet)
     ensemble: QEnsemble | None = None  # heads in place of one network (Bootstrapped DQN)
+    novelty_value: bool = (
+        False  # a second network beside it, U: the novelty beyond each action (deep model-based exploration)
+    )
 
 
 @dataclass
@@ -58,6 +61,7 @@ class ExplorerContext:
     device: torch.device
     num_members: int | None = None  # a population's size M (the env batch is [num_envs, M]); None: one agent
     env_options: dict = dataclasses.field(default_factory=dict)  # the env's torch keyword arguments (DeepSea's size)
+    novelty_value: TensorDictModule | None = None  # U, built as the Q-network is, when q_network asked for it
 
 
 class Explorer:

@@ -15,10 +15,11 @@ from torchrl_mbe.app.explorers.base import (
     ExplorationConfig,
     Explorer,
     ExplorerContext,
+    QNetwork,
     eps_schedule,
     field_names,
 )
-from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam
+from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam, make_target_updater
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
@@ -27,10 +28,11 @@ from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel, hot_entries
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.objectives import DynamicsLoss
+from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
 from torchrl_mbe.rundir import is_int
 
 WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
+DISCOUNT = Rule(lambda v: 0 <= v < 1, "a number in [0, 1)")
 
 
 @dataclass
@@ -45,6 +47,8 @@ class PlanningExploration(ExplorationConfig):
     intrinsic_coef: float = setting(0.0, NON_NEGATIVE)
     # an exploring step's action maximizes novelty + value_weight * Q (0: the paper's, novelty alone)
     value_weight: float = setting(0.0, NON_NEGATIVE)
+    # a set discount: the novelty beyond each predicted state is learned (U) and added to it (null: the paper's, one step)
+    novelty_discount: float | None = setting(None, DISCOUNT.or_none())
 
 
 class DynamicsTraining:
@@ -88,6 +92,49 @@ class DynamicsTraining:
         self.last_loss = state["last_loss"]
 
 
+class NoveltyValueTraining:
+    """The value of novelty's updates: one gradient step of :class:`~torchrl_mbe.objectives.NoveltyValueLoss` on each Q update's batch.
+
+    Its target network is updated as the Q-network's (``algo.target_update``), and
+    starts from the network as it is at the first update, input statistics fitted.
+    """
+
+    def __init__(self, loss: NoveltyValueLoss, algo: DictConfig, *, compile: bool, num_members: int | None) -> None:
+        self.loss = loss
+        self.step = GradientStep(
+            lambda batch: loss(batch)["loss_novelty_value"],
+            adam(loss.parameters(), algo.lr),
+            algo.max_grad_norm,
+            compile=compile,
+            num_members=num_members,
+        )
+        self.target_updater = make_target_updater(algo, loss)
+        self.updates = 0
+
+    def update(self, batch: TensorDictBase) -> dict[str, float]:
+        if self.updates == 0:
+            self.loss.target_value_network_params.update_(self.loss.value_network_params)
+        loss = self.step(batch)
+        self.target_updater.step()
+        self.updates += 1
+        return {"loss_novelty_value": loss}
+
+    def state_dict(self) -> dict:
+        return {
+            "target_network": self.loss.target_value_network_params.data.clone().to_dict(),
+            "target_updater_counter": getattr(self.target_updater, "counter", None),
+            "optimizer": self.step.optimizer.state_dict(),
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        self.loss.target_value_network_params.data.update_(state["target_network"])
+        if state["target_updater_counter"] is not None:
+            self.target_updater.counter = state["target_updater_counter"]
+        self.step.optimizer.load_state_dict(state["optimizer"])
+        self.updates = state["updates"]
+
+
 class PlanningExplorer(EGreedyExplorer):
     """The paper's exploration: with probability eps, the action whose predicted next state the novelty scorer rates rarest.
 
@@ -99,7 +146,7 @@ class PlanningExplorer(EGreedyExplorer):
     """
 
     schema = PlanningExploration
-    log_columns = ("loss_dynamics", "dynamics_val_error", "intrinsic_reward")
+    log_columns = ("loss_dynamics", "dynamics_val_error", "intrinsic_reward", "loss_novelty_value")
     counters = ("dynamics_updates",)
     scorer: ClassVar[type[scorers.RollingWindowNovelty]]  # the novelty scorer's class
 
@@ -110,10 +157,12 @@ class PlanningExplorer(EGreedyExplorer):
         training: DynamicsTraining | None,
         num_members: int | None = None,
         intrinsic_coef: float | None = None,
+        novelty_value: NoveltyValueTraining | None = None,
     ) -> None:
         super().__init__(policy, policy)
         self.loss = loss
         self.training = training  # None for the oracle, which has nothing to learn
+        self.novelty_value = novelty_value
         self.num_members = num_members
         self.intrinsic_coef = intrinsic_coef
         self.val_error: torch.Tensor | None = None  # float64, [M] in a population
@@ -153,6 +202,7 @@ class PlanningExplorer(EGreedyExplorer):
             **eps_schedule(cfg.algo),
             model_error_threshold=exploration.model_error_threshold,
             value_weight=exploration.value_weight,
+            novelty_value=context.novelty_value,
         )
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
@@ -164,7 +214,30 @@ class PlanningExplorer(EGreedyExplorer):
         intrinsic_coef = exploration.intrinsic_coef or None
         if intrinsic_coef is not None:
             context.env.append_transform(NoveltyReward(novelty))
-        return cls(policy, loss, training, context.num_members, intrinsic_coef)
+        return cls(
+            policy, loss, training, context.num_members, intrinsic_coef, cls.novelty_value_training(context, planner)
+        )
+
+    @classmethod
+    def q_network(cls, exploration: DictConfig) -> QNetwork:
+        return QNetwork(novelty_value=exploration.novelty_discount is not None)
+
+    @staticmethod
+    def novelty_value_training(context: ExplorerContext, planner: NoveltyPlanner) -> NoveltyValueTraining | None:
+        """``U``'s training (``exploration.novelty_discount`` set), on replayed states scored against every env's window."""
+        if context.novelty_value is None:
+            return None
+        loss = NoveltyValueLoss(
+            context.novelty_value,
+            planner.replayed_action_scores,
+            context.action_spec,
+            gamma=context.cfg.exploration.novelty_discount,
+            loss_function=context.cfg.algo.loss_function,
+            num_members=context.num_members,
+        )
+        return NoveltyValueTraining(
+            loss, context.cfg.algo, compile=context.cfg.compile, num_members=context.num_members
+        )
 
     @classmethod
     def make_novelty(
@@ -200,6 +273,9 @@ class PlanningExplorer(EGreedyExplorer):
         if self.training is not None:
             self.training.learn(replay_buffer, frames, new_frames)
 
+    def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
+        return self.novelty_value.update(batch) if self.novelty_value is not None else {}
+
     def log_fields(self) -> dict[str, float | None]:
         val_error = self.val_error.tolist() if self.val_error is not None else None
         return {
@@ -215,12 +291,15 @@ class PlanningExplorer(EGreedyExplorer):
         return {
             "val_error": self.val_error,
             "training": self.training.state_dict() if self.training is not None else None,
+            "novelty_value": self.novelty_value.state_dict() if self.novelty_value is not None else None,
         }
 
     def load_state_dict(self, state: dict) -> None:
         self.val_error = state["val_error"]
         if self.training is not None:
             self.training.load_state_dict(state["training"])
+        if self.novelty_value is not None:
+            self.novelty_value.load_state_dict(state["novelty_value"])
 
 
 @dataclass
@@ -322,3 +401,23 @@ class CountsExplorer(PlanningExplorer):
         return {
             "bits": None if isinstance(observation_spec, OneHot) else exploration.bits
         }  # MultiOneHot: hashed, jointly
+
+
+@dataclass
+class DeepExploration(CountsExploration):
+    name: str = (
+        "deep"  # towards the rarest reachable state: the count bonus, and the learned novelty beyond each prediction
+    )
+    novelty_discount: float | None = setting(0.99, DISCOUNT.or_none())
+
+
+class DeepExplorer(CountsExplorer):
+    """``exploration=deep``, deep model-based exploration: the action towards the rarest state reachable, not only the rarest next state.
+
+    The counts planner (:class:`CountsExplorer`) plus ``U``, the discounted novelty beyond
+    each predicted next state, learned on the replayed transitions
+    (:class:`~torchrl_mbe.objectives.NoveltyValueLoss`): an exploring step maximizes
+    ``max(novelty(D(s, a)), U(s, a))``.
+    """
+
+    schema = DeepExploration

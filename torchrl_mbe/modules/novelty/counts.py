@@ -111,15 +111,19 @@ class VisitCounts(RollingWindowNovelty):
     def score(self, states: torch.Tensor) -> torch.Tensor:
         """``1 / sqrt(n + 1)`` of each state's bucket, ``n`` its visits; 1 before any visit.
 
-        Without ``bits``, each entry's bonus weighted by the state: a one-hot state's own,
-        and a probability vector's expected bonus, so that a prediction spread over cells
-        never visited scores as high as one of them.
+        Without ``bits``, each entry's bonus weighted by the state read as a distribution
+        over the entries: a one-hot state's own bonus, a probability vector's expected bonus
+        (a prediction spread over cells never visited scores as high as one of them). Any
+        other prediction (a randomized prior's offset added) weighs its positive entries,
+        scaled to sum to at most 1.
         """
         if self.num_features is None:
             return states.new_ones(states.shape[:-1])
         states = self._check_shape(states)
         if self.bits is None:
-            return (states.to(self.counts) * (self.counts + 1).rsqrt()).sum(-1).to(states.dtype)
+            weights = states.to(self.counts).clamp(min=0)
+            weights = weights / weights.sum(-1, keepdim=True).clamp(min=1)
+            return (weights * (self.counts + 1).rsqrt()).sum(-1).to(states.dtype)
         code = self.code(states)
         visits = self.counts.expand(*code.shape, self.counts.shape[-1]).gather(-1, code.unsqueeze(-1)).squeeze(-1)
         return (visits + 1).rsqrt().to(states.dtype)
