@@ -12,6 +12,7 @@ from torchrl.envs import DoubleToFloat, GymEnv, TransformedEnv
 from torchrl.envs.utils import RandomPolicy
 
 from torchrl_mbe import make_env
+from torchrl_mbe.envs import observations
 from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE
 from torchrl_mbe.modules.dynamics import categorical_groups
 
@@ -164,3 +165,14 @@ def test_every_id_of_gymnasiums_toy_text_and_classic_control_and_of_minigrid_ste
     assert set(refused) == (continuous if suite.endswith("classic_control") else {i for i in refused if "WFC" in i}), (
         refused
     )
+
+
+def test_a_dropped_text_entry_is_said_once_however_many_env_copies_drop_it(monkeypatch):
+    said = []
+    monkeypatch.setattr(observations.log, "info", lambda message, *args: said.append(message % args))
+    observations._log_dropped.cache_clear()  # what earlier tests of this process said
+    make_env("MiniGrid-Empty-6x6-v0", num_envs=3, seed=0)
+    make_env("MiniGrid-Empty-6x6-v0", seed=1)
+    assert said == [
+        "MiniGrid-Empty-6x6-v0: the observation entries ['mission'] are dropped (not a fixed number of numbers)"
+    ]

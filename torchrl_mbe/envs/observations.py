@@ -20,6 +20,7 @@ vectors, and a full-covariance window over ``d`` numbers costs ``d**2`` memory).
 
 from __future__ import annotations
 
+import functools
 import importlib
 import logging
 from typing import Any
@@ -144,6 +145,12 @@ def wrap_gymnasium(env: gym.Env, device: torch.device | str | None = None) -> Gy
     return wrapper
 
 
+@functools.cache
+def _log_dropped(env_id: str, dropped: tuple[str, ...]) -> None:
+    """Says once per process which entries of a task's observation are dropped (every env copy drops the same)."""
+    log.info("%s: the observation entries %s are dropped (not a fixed number of numbers)", env_id, list(dropped))
+
+
 def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
     if not isinstance(env.action_space, spaces.Discrete):
         raise ValueError(
@@ -153,11 +160,7 @@ def _flat_observation(env_id: str, env: gym.Env) -> gym.Env:
     if isinstance(space, spaces.Dict):
         kept = [key for key, entry in space.spaces.items() if _flattenable(entry)]
         if kept and len(kept) < len(space.spaces):
-            log.info(
-                "%s: the observation entries %s are dropped (not a fixed number of numbers)",
-                env_id,
-                sorted(set(space.spaces) - set(kept)),
-            )
+            _log_dropped(env_id, tuple(sorted(set(space.spaces) - set(kept))))
             env = FilterObservation(env, kept)
             space = env.observation_space
     if not _flattenable(space) or not spaces.flatdim(space):
