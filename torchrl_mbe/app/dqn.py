@@ -292,31 +292,18 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     q_network = explorer_class.q_network(cfg.exploration)
     ensemble = q_network.ensemble  # a Bootstrapped DQN's heads, else None
     observation_spec = env.observation_spec_unbatched["observation"]
-    actor = make_q_actor(
+    q_actor = partial(
+        make_q_actor,
         observation_size,
         action_spec,
         algo.num_cells,
         device,
         input_norm=q_input_norm if algo.standardize_inputs else None,
         num_members=num_members,
-        q_network=q_network,
-        hot_entries=None if algo.standardize_inputs else hot_entries(observation_spec),
-    )
+    )  # the Q-network, and the value of novelty beside it when the explorer asks for one
+    actor = q_actor(q_network=q_network, hot_entries=None if algo.standardize_inputs else hot_entries(observation_spec))
     q_loss = make_q_loss(actor, algo, action_spec, num_members)
-    novelty_value = (
-        make_novelty_value_network(
-            make_q_actor(
-                observation_size,
-                action_spec,
-                algo.num_cells,
-                device,
-                input_norm=q_input_norm if algo.standardize_inputs else None,
-                num_members=num_members,
-            )
-        )
-        if q_network.novelty_value
-        else None
-    )
+    novelty_value = make_novelty_value_network(q_actor()) if q_network.novelty_value else None
     context = ExplorerContext(
         cfg,
         env,
