@@ -30,7 +30,14 @@ from torchrl.objectives import DQNLoss, TargetNetUpdater
 from torchrl_mbe.app.environments import env_options, make_run_env
 from torchrl_mbe.app.explorers import Explorer, ExplorerContext, QNetwork, explorer_of
 from torchrl_mbe.app.members import select_members
-from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam, make_target_updater
+from torchrl_mbe.app.optim import (
+    GradientStep,
+    UpdateSchedule,
+    adam,
+    load_target_state,
+    make_target_updater,
+    target_state,
+)
 from torchrl_mbe.app.population import Resumable, StopOnInterrupt, open_population, start_population
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
@@ -237,8 +244,7 @@ class DQNAgent:
         """The policy (Q-network, exploration, dynamics, window) once, the target network, the optimizers, the counters."""
         return {
             "policy": self.explorer.policy.state_dict(),
-            "target_network": self.q_loss.target_value_network_params.data.clone().to_dict(),
-            "target_updater_counter": getattr(self.target_updater, "counter", None),
+            **target_state(self.q_loss, self.target_updater),
             "q_optimizer": self.q_step.optimizer.state_dict(),
             "q_updates": self.q_schedule.updates,
             "q_update_credit": self.q_schedule.credit,
@@ -255,9 +261,7 @@ class DQNAgent:
 
     def load_state_dict(self, state: dict) -> None:
         self.explorer.policy.load_state_dict(state["policy"])
-        self.q_loss.target_value_network_params.data.update_(state["target_network"])
-        if state["target_updater_counter"] is not None:
-            self.target_updater.counter = state["target_updater_counter"]
+        load_target_state(self.q_loss, self.target_updater, state)
         self.q_step.optimizer.load_state_dict(state["q_optimizer"])
         self.q_schedule.load_state_dict({"updates": state["q_updates"], "credit": state["q_update_credit"]})
         self.explorer.load_state_dict(state["explorer"])

@@ -10,7 +10,15 @@ from omegaconf import DictConfig
 from tensordict import TensorDictBase
 from torchrl.objectives import HardUpdate, LossModule, SoftUpdate, TargetNetUpdater
 
-__all__ = ["GradientStep", "UpdateSchedule", "adam", "clip_grad_norm_per_member_", "make_target_updater"]
+__all__ = [
+    "GradientStep",
+    "UpdateSchedule",
+    "adam",
+    "clip_grad_norm_per_member_",
+    "load_target_state",
+    "make_target_updater",
+    "target_state",
+]
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +39,21 @@ def make_target_updater(algo: DictConfig, loss: LossModule) -> TargetNetUpdater:
     if algo.target_update == "hard":
         return HardUpdate(loss, value_network_update_interval=algo.hard_update_interval)
     return SoftUpdate(loss, tau=algo.soft_update_tau)
+
+
+def target_state(loss: LossModule, updater: TargetNetUpdater) -> dict:
+    """A loss's target network and its updater's counter (a ``HardUpdate``'s; ``None`` for ``SoftUpdate``), for a checkpoint."""
+    return {
+        "target_network": loss.target_value_network_params.data.clone().to_dict(),
+        "target_updater_counter": getattr(updater, "counter", None),
+    }
+
+
+def load_target_state(loss: LossModule, updater: TargetNetUpdater, state: dict) -> None:
+    """Restores :func:`target_state`."""
+    loss.target_value_network_params.data.update_(state["target_network"])
+    if state["target_updater_counter"] is not None:
+        updater.counter = state["target_updater_counter"]
 
 
 class UpdateSchedule:

@@ -5,13 +5,14 @@ from __future__ import annotations
 from typing import Literal
 
 import torch
-from tensordict import NestedKey, TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from tensordict.utils import expand_as_right
 from torchrl.data import Composite, TensorSpec, Unbounded
 from torchrl.envs.utils import ExplorationType, exploration_type
 from torchrl.modules import EGreedyModule
 
+from torchrl_mbe.modules.networks import action_values
 from torchrl_mbe.modules.planner import NoveltyPlanner, random_argmax, reachable_novelty
 
 __all__ = ["AnnealedEGreedyModule", "ModelBasedExplorationPolicy", "check_eps_schedule"]
@@ -224,8 +225,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
             return action
         scores = self.planner.action_scores(observation)
         if self.novelty_value is not None:
-            inputs = TensorDict({self.novelty_value.in_keys[0]: observation}, observation.shape[:-1])
-            scores = reachable_novelty(scores, self.novelty_value(inputs).get(self.novelty_value.out_keys[0]))
+            scores = reachable_novelty(scores, action_values(self.novelty_value, observation))
         if self.value_weight:
             scores = scores + self.value_weight * tensordict.get("action_value")
         return self.planner.actions_at(random_argmax(scores))

@@ -11,12 +11,15 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModuleBase
 from torch import nn
 from torchrl.data import TensorSpec
 from torchrl.modules import MLP, MultiAgentMLP, NoisyLinear, QValueActor
 
 __all__ = [
     "MembersMLP",
+    "action_values",
     "forward_on_hot_entries",
     "init_linear_layers",
     "make_members_mlp",
@@ -282,6 +285,20 @@ def make_members_mlp(
             _each_member(nn.init.zeros_),
         )
     return network
+
+
+def action_values(network: TensorDictModuleBase, observation: torch.Tensor) -> torch.Tensor:
+    """A value network's one output (a value per action) on an observation tensor, ``(*batch, num_actions)``.
+
+    Examples:
+        >>> import torch
+        >>> from tensordict.nn import TensorDictModule
+        >>> from torchrl_mbe.modules.networks import action_values
+        >>> action_values(TensorDictModule(torch.nn.Linear(2, 3), ["observation"], ["values"]), torch.zeros(5, 2)).shape
+        torch.Size([5, 3])
+    """
+    inputs = TensorDict({network.in_keys[0]: observation}, observation.shape[:-1])
+    return network(inputs).get(network.out_keys[0])
 
 
 def forward_on_hot_entries(network: nn.Module, hot: torch.Tensor) -> torch.Tensor:

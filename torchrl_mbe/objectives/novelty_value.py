@@ -13,6 +13,7 @@ from torchrl.data import TensorSpec
 from torchrl.objectives import LossModule, distance_loss
 
 from torchrl_mbe.modules.actions import action_indices
+from torchrl_mbe.modules.networks import action_values
 from torchrl_mbe.modules.planner import reachable_novelty
 
 __all__ = ["NoveltyValueLoss"]
@@ -124,11 +125,8 @@ class NoveltyValueLoss(LossModule):
 
     def values(self, observation: torch.Tensor, params: TensorDictBase) -> torch.Tensor:
         """``U(observation, .)`` under ``params``, ``(*batch, num_actions)``."""
-        network = self.value_network
-        with params.to_module(network):
-            return network(TensorDict({network.in_keys[0]: observation}, observation.shape[:-1])).get(
-                network.out_keys[0]
-            )
+        with params.to_module(self.value_network):
+            return action_values(self.value_network, observation)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         keys = self.tensor_keys

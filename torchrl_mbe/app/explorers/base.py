@@ -43,9 +43,8 @@ class QNetwork(NamedTuple):
 
     noise_std: float | None = None  # a NoisyNet's initial noise scale (NoisyNet)
     ensemble: QEnsemble | None = None  # heads in place of one network (Bootstrapped DQN)
-    novelty_value: bool = (
-        False  # a second network beside it, U: the novelty beyond each action (deep model-based exploration)
-    )
+    # a second network beside it, U: the novelty beyond each action (deep model-based exploration)
+    novelty_value: bool = False
 
 
 @dataclass

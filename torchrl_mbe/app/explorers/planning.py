@@ -19,7 +19,14 @@ from torchrl_mbe.app.explorers.base import (
     eps_schedule,
     field_names,
 )
-from torchrl_mbe.app.optim import GradientStep, UpdateSchedule, adam, make_target_updater
+from torchrl_mbe.app.optim import (
+    GradientStep,
+    UpdateSchedule,
+    adam,
+    load_target_state,
+    make_target_updater,
+    target_state,
+)
 from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
@@ -121,16 +128,13 @@ class NoveltyValueTraining:
 
     def state_dict(self) -> dict:
         return {
-            "target_network": self.loss.target_value_network_params.data.clone().to_dict(),
-            "target_updater_counter": getattr(self.target_updater, "counter", None),
+            **target_state(self.loss, self.target_updater),
             "optimizer": self.step.optimizer.state_dict(),
             "updates": self.updates,
         }
 
     def load_state_dict(self, state: dict) -> None:
-        self.loss.target_value_network_params.data.update_(state["target_network"])
-        if state["target_updater_counter"] is not None:
-            self.target_updater.counter = state["target_updater_counter"]
+        load_target_state(self.loss, self.target_updater, state)
         self.step.optimizer.load_state_dict(state["optimizer"])
         self.updates = state["updates"]
 
@@ -405,9 +409,8 @@ class CountsExplorer(PlanningExplorer):
 
 @dataclass
 class DeepExploration(CountsExploration):
-    name: str = (
-        "deep"  # towards the rarest reachable state: the count bonus, and the learned novelty beyond each prediction
-    )
+    # towards the rarest reachable state: the count bonus, and the learned novelty beyond each prediction
+    name: str = "deep"
     novelty_discount: float | None = setting(0.99, DISCOUNT.or_none())
 
 
