@@ -24,6 +24,7 @@ from torchrl_mbe.modules import (
     NoveltyPlanner,
     RollingGaussianDensity,
     RollingWindowNovelty,
+    TransitionTable,
     VisitCounts,
 )
 from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
@@ -44,6 +45,7 @@ __all__ = [
     "NoveltyValueLoss",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
+    "TransitionTable",
     "VisitCounts",
     "make_env",
 ]

@@ -146,6 +146,12 @@ def test_ctrl_c_saves_and_resume_continues_without_losing_or_repeating_frames(
             ["env=lunarlander", "dynamics=oracle"],
             r"dynamics=oracle: lunarlander has no oracle dynamics \(those that have: mountaincar, deepsea\)",
         ),
+        (["dynamics=table"], r"dynamics=table: mountaincar has no one-hot state \(a OneHot observation"),
+        (
+            ["env=deepsea", "dynamics=table", "exploration.horizon=2"],
+            "dynamics=table: predicts from states, not from predictions; use exploration.horizon=1",
+        ),
+        (["env=deepsea", "dynamics=table", "population=2"], "dynamics=table: one table serves one run"),
         (["env.num_envs=3"], "collector.frames_per_batch=16: expected a multiple of env.num_envs=3"),
         (["algo.gamma=1.5"], r"algo.gamma=1.5: expected a discount in \[0, 1\]"),
         (["algo.gamma=-0.5"], r"algo.gamma=-0.5: expected a discount in \[0, 1\]"),

@@ -23,8 +23,11 @@ from typing import Any, Dict, Optional
 import torch
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
+from torchrl.data import OneHot
 
+from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
+from torchrl_mbe.app.explorers.planning import DYNAMICS
 from torchrl_mbe.app.identity import method_name, seeds_name, with_size
 from torchrl_mbe.app.loggers import BACKENDS, backend_unavailable
 from torchrl_mbe.app.observation import matched
@@ -107,7 +110,8 @@ class ReinforceConfig:
 
 @dataclass
 class DynamicsConfig:
-    name: str = setting("mlp", one_of("mlp", "oracle"))  # oracle: the true dynamics (MountainCar, DeepSea)
+    # oracle: the true dynamics (MountainCar, DeepSea); table: each (cell, action)'s observed successor (one-hot states)
+    name: str = setting("mlp", one_of(*DYNAMICS))
     num_cells: list[int] = setting([64, 64], LAYERS)
     lr: float = setting(1e-3, POSITIVE)
     batch_size: int = setting(256, POSITIVE_INT)
@@ -199,7 +203,7 @@ def register_configs() -> None:
     store.store(group="algo", name="reinforce", node=ReinforceConfig)
     for name, explorer in EXPLORERS.items():
         store.store(group="exploration", name=name, node=explorer.schema)
-    for name in ("mlp", "oracle"):
+    for name in DYNAMICS:
         store.store(group="dynamics", name=name, node=DynamicsConfig(name=name))
     for name in ("uniform", "prioritized"):
         store.store(group="buffer", name=name, node=BufferConfig(name=name))
@@ -260,6 +264,8 @@ def check_config(cfg: DictConfig) -> None:
     config = OmegaConf.to_object(cfg)
     _check_fields(config, "")
     _check_together(config)
+    if is_planning(config) and config.dynamics.name == "table":
+        _check_table(cfg)
 
 
 def _check_fields(node: Any, prefix: str) -> None:
@@ -305,6 +311,21 @@ def _check_together(config: Config) -> None:
         raise ConfigError(f"dynamics (output, normalize): {error}") from None
     if config.population > 1:
         _check_population(config)
+
+
+def _check_table(cfg: DictConfig) -> None:
+    """``dynamics=table``: one-hot states of one group, one model, one-step plans."""
+    refusal = "dynamics=table"
+    if not isinstance(config_observation_spec(cfg), OneHot):
+        raise ConfigError(
+            f"{refusal}: {cfg.env.name} has no one-hot state (a OneHot observation: DeepSea, a Discrete space); use dynamics=mlp."
+        )
+    if cfg.population > 1:
+        raise ConfigError(f"{refusal}: one table serves one run; use population=1 or dynamics=mlp.")
+    if cfg.exploration.horizon > 1:
+        raise ConfigError(
+            f"{refusal}: predicts from states, not from predictions; use exploration.horizon=1 or dynamics=mlp."
+        )
 
 
 def _check_env_options(env: EnvConfig, task: Task | None) -> None:

@@ -1,4 +1,4 @@
-"""TorchRL modules: novelty scorers, the dynamics model, the planner and the exploration policies."""
+"""TorchRL modules: novelty scorers, the dynamics models, the planner and the exploration policies."""
 
 from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import AnnealedEGreedyModule, ModelBasedExplorationPolicy, check_eps_schedule
@@ -14,6 +14,7 @@ from torchrl_mbe.modules.novelty import (
     VisitCounts,
 )
 from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.modules.table import TransitionTable
 
 __all__ = [
     "AnnealedEGreedyModule",
@@ -27,6 +28,7 @@ __all__ = [
     "RollingGaussianDensity",
     "RollingWindowNovelty",
     "Standardize",
+    "TransitionTable",
     "VisitCounts",
     "check_eps_schedule",
     "init_linear_layers",

@@ -35,8 +35,12 @@ from torchrl_mbe.modules import novelty as scorers
 from torchrl_mbe.modules.dynamics import DynamicsModel, hot_entries
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
 from torchrl_mbe.modules.planner import NoveltyPlanner
+from torchrl_mbe.modules.table import TransitionTable
 from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
 from torchrl_mbe.rundir import is_int
+
+DYNAMICS = ("mlp", "oracle", "table")
+"""``dynamics.name``: a learned network, the task's true dynamics, or a learned table of one-hot states."""
 
 WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
 DISCOUNT = Rule(lambda v: 0 <= v < 1, "a number in [0, 1)")
@@ -143,9 +147,11 @@ class PlanningExplorer(EGreedyExplorer):
     """The paper's exploration: with probability eps, the action whose predicted next state the novelty scorer rates rarest.
 
     The policy is :class:`~torchrl_mbe.ModelBasedExplorationPolicy` around the actor;
-    the dynamics model is learned (``dynamics=mlp``) or the task's exact dynamics
-    (``dynamics=oracle``: MountainCar's physics, DeepSea's grid; nothing to train). Its error on every new batch, before
-    it is trained on, feeds the policy's warm-up switch. Subclasses choose the
+    the dynamics model is a network (``dynamics=mlp``), a table of one-hot states
+    written from every new frame (``dynamics=table``: :class:`~torchrl_mbe.modules.table.TransitionTable`)
+    or the task's exact dynamics (``dynamics=oracle``: MountainCar's physics, DeepSea's
+    grid; nothing to train). Its error on every new batch, before it is trained on,
+    feeds the policy's warm-up switch. Subclasses choose the
     novelty scorer (``scorer``).
     """
 
@@ -165,7 +171,7 @@ class PlanningExplorer(EGreedyExplorer):
     ) -> None:
         super().__init__(policy, policy)
         self.loss = loss
-        self.training = training  # None for the oracle, which has nothing to learn
+        self.training = training  # None for the oracle and the table, which have no gradient step
         self.novelty_value = novelty_value
         self.num_members = num_members
         self.intrinsic_coef = intrinsic_coef
@@ -178,6 +184,8 @@ class PlanningExplorer(EGreedyExplorer):
         exploration = cfg.exploration
         if cfg.dynamics.name == "oracle":
             dynamics = task_of(resolve_env_id(cfg.env.name)).oracle(context.action_spec, **context.env_options)
+        elif cfg.dynamics.name == "table":
+            dynamics = TransitionTable(context.env.observation_spec, context.action_spec, device=context.device)
         else:
             dynamics = DynamicsModel(
                 context.env.observation_spec,  # its size, and a MultiOneHot's groups
@@ -261,7 +269,7 @@ class PlanningExplorer(EGreedyExplorer):
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
-        return f"{cls.schema.name}-oracle" if cfg.dynamics.name == "oracle" else cls.schema.name
+        return cls.schema.name if cfg.dynamics.name == "mlp" else f"{cls.schema.name}-{cfg.dynamics.name}"
 
     def observe(self, batch: TensorDictBase) -> None:
         """The dynamics error on the new frames (not yet trained on), smoothed (each member's); feeds the warm-up switch."""
@@ -270,6 +278,9 @@ class PlanningExplorer(EGreedyExplorer):
             error = self.loss(frames)["loss_dynamics"].double()
         self.val_error = error if self.val_error is None else 0.9 * self.val_error + 0.1 * error
         self.policy.report_model_error(float(self.val_error.max()))  # populations refuse model_error_threshold
+        if isinstance(self.loss.dynamics, TransitionTable):  # a table learns each new frame as it comes
+            keys = self.loss.tensor_keys
+            self.loss.dynamics.write(frames[keys.observation], frames[keys.action], frames[keys.next_observation])
         if self.intrinsic_coef is not None:
             self.intrinsic_reward = member_means(batch.get(("next", "intrinsic_reward")), self.num_members)
 
@@ -319,7 +330,9 @@ class GaussianExplorer(PlanningExplorer):
 
     @classmethod
     def method_label(cls, cfg: DictConfig, *, learns: bool) -> str:
-        return "oracle" if cfg.dynamics.name == "oracle" else cls.schema.name  # the paper's oracle experiment
+        if cfg.dynamics.name == "oracle":
+            return "oracle"  # the paper's oracle experiment
+        return super().method_label(cfg, learns=learns)
 
 
 @dataclass
