@@ -66,6 +66,23 @@ def test_an_explorer_without_a_dynamics_model_gets_only_raw_inputs_on_a_one_hot_
     assert changes == ["algo.standardize_inputs=false"]
 
 
+@pytest.mark.parametrize(
+    "overrides, dynamics",
+    [
+        (["env=deepsea"], "table"),  # deep exploration of one run on cells
+        (["env=gym", "env.name=FrozenLake-v1"], "table"),
+        (["env=deepsea", "population=2"], "mlp"),  # one table serves one run: the categorical network
+        (["env=deepsea", "exploration.horizon=2"], "mlp"),  # the table predicts from states only
+        (["env=gym", "env.name=Blackjack-v1"], "mlp"),  # three categorical variables are not cells
+    ],
+)
+def test_deep_exploration_on_cells_gets_the_transition_table(compose_default, overrides, dynamics):
+    cfg = compose_default("exploration=deep", *overrides)
+    match_observation(cfg, config_observation_spec(cfg), named={"exploration"})
+    assert cfg.dynamics.name == dynamics
+    assert cfg.dynamics.output == ("delta" if dynamics == "table" else "categorical")
+
+
 def test_what_the_command_line_names_wins_over_the_observation(compose_default):
     cfg = compose_default("env=deepsea", "exploration=gaussian", "dynamics.num_cells=[32]")
     changes = match_observation(cfg, config_observation_spec(cfg), named={"exploration", "dynamics.num_cells"})

@@ -23,7 +23,6 @@ from typing import Any, Dict, Optional
 import torch
 from hydra.core.config_store import ConfigStore
 from omegaconf import MISSING, DictConfig, OmegaConf
-from torchrl.data import OneHot
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
@@ -45,7 +44,7 @@ from torchrl_mbe.app.settings import (
     setting,
 )
 from torchrl_mbe.envs.registry import TASKS, Task, resolve_env_id, task_of
-from torchrl_mbe.modules.dynamics import OUTPUTS, check_output
+from torchrl_mbe.modules.dynamics import OUTPUTS, check_output, hot_entries
 from torchrl_mbe.modules.exploration import check_eps_schedule
 
 __all__ = [
@@ -316,7 +315,7 @@ def _check_together(config: Config) -> None:
 def _check_table(cfg: DictConfig) -> None:
     """``dynamics=table``: one-hot states of one group, one model, one-step plans."""
     refusal = "dynamics=table"
-    if not isinstance(config_observation_spec(cfg), OneHot):
+    if hot_entries(config_observation_spec(cfg)) != 1:
         raise ConfigError(
             f"{refusal}: {cfg.env.name} has no one-hot state (a OneHot observation: DeepSea, a Discrete space); use dynamics=mlp."
         )

@@ -7,7 +7,10 @@ DeepSea (docs/results.md, section 6): the categorical dynamics model (a softmax 
 each variable's values, a randomized prior and the offset that cancels it where the
 model has data) and the diagonal Gaussian of every visited state, which on one-hot
 entries ranks them by their visit counts; the Q-network reads the raw one-hot
-entries. Any other observation keeps the configured explorer and model.
+entries. Deep exploration (``exploration.novelty_discount`` set) of one run on cells
+(a ``OneHot`` state) gets the transition table instead (``dynamics=table``): a pair
+tried once is known, an untried one leads somewhere new. Any other observation keeps
+the configured explorer and model.
 
 Settings the command line names (``exploration=...``, ``dynamics.num_cells=...``),
 presets (``experiment=``, which set ``match_observation: false``) and
@@ -22,6 +25,7 @@ from torchrl.data import MultiOneHot, OneHot, TensorSpec
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration, PlanningExplorer, explorer_of
+from torchrl_mbe.modules.dynamics import hot_entries
 
 __all__ = [
     "CATEGORICAL_DYNAMICS",
@@ -75,13 +79,23 @@ def match_observation(cfg: DictConfig, observation_spec: TensorSpec, named: set[
         changes.append("exploration=diagonal (window=null, added_variance=1e-3)")
     plans = issubclass(explorer_of(cfg.exploration), PlanningExplorer)  # the only explorers with a dynamics model
     if plans and not _names(named, "dynamics") and cfg.dynamics.name == "mlp":
-        for key, value in CATEGORICAL_DYNAMICS.items():
-            cfg.dynamics[key] = value
-            changes.append(f"dynamics.{key}={value}")
+        if _tabulates(cfg, observation_spec):
+            cfg.dynamics.name = "table"
+            changes.append("dynamics=table")
+        else:
+            for key, value in CATEGORICAL_DYNAMICS.items():
+                cfg.dynamics[key] = value
+                changes.append(f"dynamics.{key}={value}")
     if not _names(named, "algo.standardize_inputs"):
         cfg.algo.standardize_inputs = False
         changes.append("algo.standardize_inputs=false")
     return changes
+
+
+def _tabulates(cfg: DictConfig, observation_spec: TensorSpec) -> bool:
+    """Whether the run gets the transition table: deep exploration of one run on cells (one ``OneHot`` group), planned one step at a time."""
+    deep = cfg.exploration.get("novelty_discount") is not None
+    return deep and hot_entries(observation_spec) == 1 and cfg.population == 1 and cfg.exploration.horizon == 1
 
 
 def matched(cfg: DictConfig) -> DictConfig:
