@@ -14,7 +14,7 @@ from torchrl.envs.utils import RandomPolicy
 from torchrl_mbe import make_env
 from torchrl_mbe.envs import observations
 from torchrl_mbe.envs.observations import MAX_EPISODE_STEPS, MAX_OBSERVATION_SIZE
-from torchrl_mbe.modules.dynamics import categorical_groups
+from torchrl_mbe.modules.observations import categorical_groups
 
 THREE_ACTIONS = spaces.Discrete(3)
 

@@ -44,8 +44,9 @@ from torchrl_mbe.app.settings import (
     setting,
 )
 from torchrl_mbe.envs.registry import TASKS, Task, resolve_env_id, task_of
-from torchrl_mbe.modules.dynamics import OUTPUTS, check_output, hot_entries
+from torchrl_mbe.modules.dynamics import OUTPUTS, check_output
 from torchrl_mbe.modules.exploration import check_eps_schedule
+from torchrl_mbe.modules.observations import hot_entries
 
 __all__ = [
     "Config",

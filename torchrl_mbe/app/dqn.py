@@ -42,9 +42,9 @@ from torchrl_mbe.app.population import Resumable, StopOnInterrupt, open_populati
 from torchrl_mbe.app.replay import ReplayState, ReplayTransitions, make_replay_buffer
 from torchrl_mbe.app.rollout import CollectorState
 from torchrl_mbe.modules.bootstrap import BootstrappedQValueActor, EnsembleQNetwork
-from torchrl_mbe.modules.dynamics import hot_entries
 from torchrl_mbe.modules.networks import make_per_action_mlp, make_population_q_actor
 from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.observations import hot_entries
 from torchrl_mbe.objectives.bootstrap import BootstrapDQNLoss
 from torchrl_mbe.objectives.population import PopulationDQNLoss
 

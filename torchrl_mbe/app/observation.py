@@ -25,7 +25,7 @@ from torchrl.data import MultiOneHot, OneHot, TensorSpec
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration, PlanningExplorer, explorer_of
-from torchrl_mbe.modules.dynamics import hot_entries
+from torchrl_mbe.modules.observations import hot_entries
 
 __all__ = [
     "CATEGORICAL_DYNAMICS",

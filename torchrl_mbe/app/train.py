@@ -17,7 +17,7 @@ from torchrl_mbe.app.processes import train_in_processes
 from torchrl_mbe.app.reinforce import train_reinforce
 from torchrl_mbe.app.replay import check_replay_fits
 from torchrl_mbe.app.run import RunFinished
-from torchrl_mbe.modules.dynamics import categorical_groups
+from torchrl_mbe.modules.observations import categorical_groups
 
 __all__ = ["LOOPS", "default_processes", "run_loop", "train"]
 

@@ -8,12 +8,13 @@ import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 from torch import nn
-from torchrl.data import Composite, MultiOneHot, OneHot, ReplayBuffer, TensorSpec
+from torchrl.data import ReplayBuffer, TensorSpec
 from torchrl.modules import MLP
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions, one_hot_actions
 from torchrl_mbe.modules.networks import forward_on_hot_entries, init_linear_layers, make_members_mlp
 from torchrl_mbe.modules.normalization import Standardize
+from torchrl_mbe.modules.observations import categorical_groups, flat_observation_size, hot_entries
 
 __all__ = [
     "DynamicsModel",
@@ -24,7 +25,7 @@ __all__ = [
     "hot_entries",
     "num_discrete_actions",
     "one_hot_actions",
-]  # the action helpers live in .actions
+]  # the action helpers live in .actions, the spec readers in .observations
 
 OUTPUTS = ("delta", "categorical")
 
@@ -37,63 +38,6 @@ def check_output(output: str, normalize: bool) -> None:
         raise ValueError(
             "output='categorical' predicts probabilities over the observation's entries in raw units; pass normalize=False."
         )
-
-
-def hot_entries(observation_spec: TensorSpec) -> int | None:
-    """How many ones a one-hot observation (``OneHot``, ``MultiOneHot``) holds: one per variable; ``None`` for any other.
-
-    Examples:
-        >>> from torchrl.data import MultiOneHot, OneHot, Unbounded
-        >>> from torchrl_mbe.modules.dynamics import hot_entries
-        >>> hot_entries(OneHot(9)), hot_entries(MultiOneHot([4, 3])), hot_entries(Unbounded(2))
-        (1, 2, None)
-    """
-    if not isinstance(observation_spec, (OneHot, MultiOneHot)):
-        return None
-    return len(categorical_groups(observation_spec))
-
-
-def categorical_groups(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> tuple[int, ...]:
-    """The sizes of the one-hot groups a flat observation is made of: a ``MultiOneHot`` spec's ``nvec``, else one group of every entry.
-
-    A ``OneHot`` observation (DeepSea's cells, a gymnasium ``Discrete``) is one group; a
-    ``MultiOneHot`` one (a ``MultiDiscrete``, a ``Tuple`` of ``Discrete``) one group per
-    variable.
-
-    Examples:
-        >>> from torchrl.data import MultiOneHot, OneHot
-        >>> from torchrl_mbe.modules.dynamics import categorical_groups
-        >>> categorical_groups(MultiOneHot([4, 11, 6, 3])), categorical_groups(OneHot(9)), categorical_groups(9)
-        ((4, 11, 6, 3), (9,), (9,))
-    """
-    observation = _observation_entry(observation, observation_key)
-    if isinstance(observation, MultiOneHot):
-        return tuple(int(size) for size in observation.nvec)
-    return (_observation_size(observation),)
-
-
-def _observation_entry(observation: int | TensorSpec, observation_key: NestedKey) -> int | TensorSpec:
-    """``observation`` itself, or a ``Composite``'s (an env's ``observation_spec``) ``observation_key`` entry."""
-    if isinstance(observation, Composite):
-        if observation_key not in observation.keys(include_nested=True):
-            raise ValueError(
-                f"Expected the observation size or a spec with an entry {observation_key!r} "
-                f"(e.g. env.observation_spec), got a Composite with keys {list(observation.keys(True, True))}."
-            )
-        return observation[observation_key]
-    return observation
-
-
-def _observation_size(observation: int | TensorSpec, observation_key: NestedKey = "observation") -> int:
-    """The size of a flat observation: ``observation`` itself, or the last dimension of its spec (a ``Composite``'s ``observation_key`` entry)."""
-    observation = _observation_entry(observation, observation_key)
-    if isinstance(observation, TensorSpec):
-        if not observation.shape:
-            raise ValueError(
-                f"Expected a flat observation spec with a feature dimension, got shape {tuple(observation.shape)}."
-            )
-        return int(observation.shape[-1])
-    return int(observation)
 
 
 class ExactDynamics(TensorDictModuleBase):
@@ -262,7 +206,7 @@ class DynamicsModel(TensorDictModuleBase):
             raise ValueError("hot_entries reads raw one-hot codes: pass normalize=False with it.")
         self.hot_entries = hot_entries
         groups = categorical_groups(observation_size, observation_key)
-        observation_size = _observation_size(observation_size, observation_key)
+        observation_size = flat_observation_size(observation_size, observation_key)
         prior_num_cells = list(num_cells if prior_num_cells is None else prior_num_cells)
         if observation_size < 1 or any(int(cells) < 1 for cells in [*num_cells, *prior_num_cells]):
             raise ValueError(

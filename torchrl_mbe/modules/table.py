@@ -8,7 +8,7 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import TensorSpec
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions
-from torchrl_mbe.modules.dynamics import _observation_size, categorical_groups
+from torchrl_mbe.modules.observations import categorical_groups, flat_observation_size
 
 __all__ = ["TransitionTable"]
 
@@ -73,7 +73,7 @@ class TransitionTable(TensorDictModuleBase):
             raise ValueError(
                 f"TransitionTable reads one-hot states of one group (a OneHot spec); got {len(groups)} groups {groups}."
             )
-        self.observation_size = size = _observation_size(observation_size, observation_key)
+        self.observation_size = size = flat_observation_size(observation_size, observation_key)
         self.action_spec = discrete_action_spec(action_spec, action_key)
         self.in_keys = [observation_key, action_key]
         self.out_keys = [out_key]

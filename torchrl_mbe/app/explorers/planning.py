@@ -32,8 +32,9 @@ from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule,
 from torchrl_mbe.envs import resolve_env_id, task_of
 from torchrl_mbe.envs.transforms import NoveltyReward
 from torchrl_mbe.modules import novelty as scorers
-from torchrl_mbe.modules.dynamics import DynamicsModel, hot_entries
+from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
+from torchrl_mbe.modules.observations import hot_entries
 from torchrl_mbe.modules.planner import NoveltyPlanner
 from torchrl_mbe.modules.table import TransitionTable
 from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
