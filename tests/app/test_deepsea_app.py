@@ -145,4 +145,4 @@ def test_deep_exploration_with_a_transition_table_solves_deepsea_10_where_the_ne
     )
     summary = train(cfg, tmp_path)
     assert summary["solved"] and summary["episodes"] <= 70, summary["episodes"]
-    assert summary["method"] == "deep-table"
+    assert summary["method"] == "dqn+deep-table"
