@@ -26,7 +26,7 @@ from omegaconf import MISSING, DictConfig, OmegaConf
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import EXPLORERS, PlanningExplorer, explorer_of
-from torchrl_mbe.app.explorers.planning import DYNAMICS
+from torchrl_mbe.app.explorers.planning import DYNAMICS, table_refusal
 from torchrl_mbe.app.identity import method_name, seeds_name, with_size
 from torchrl_mbe.app.loggers import BACKENDS, backend_unavailable
 from torchrl_mbe.app.observation import matched
@@ -46,7 +46,6 @@ from torchrl_mbe.app.settings import (
 from torchrl_mbe.envs.registry import TASKS, Task, resolve_env_id, task_of
 from torchrl_mbe.modules.dynamics import OUTPUTS, check_output
 from torchrl_mbe.modules.exploration import check_eps_schedule
-from torchrl_mbe.modules.observations import hot_entries
 
 __all__ = [
     "Config",
@@ -314,18 +313,8 @@ def _check_together(config: Config) -> None:
 
 
 def _check_table(cfg: DictConfig) -> None:
-    """``dynamics=table``: one-hot states of one group, one model, one-step plans."""
-    refusal = "dynamics=table"
-    if hot_entries(config_observation_spec(cfg)) != 1:
-        raise ConfigError(
-            f"{refusal}: {cfg.env.name} has no one-hot state (a OneHot observation: DeepSea, a Discrete space); use dynamics=mlp."
-        )
-    if cfg.population > 1:
-        raise ConfigError(f"{refusal}: one table serves one run; use population=1 or dynamics=mlp.")
-    if cfg.exploration.horizon > 1:
-        raise ConfigError(
-            f"{refusal}: predicts from states, not from predictions; use exploration.horizon=1 or dynamics=mlp."
-        )
+    if (refusal := table_refusal(cfg, config_observation_spec(cfg))) is not None:
+        raise ConfigError(f"dynamics=table: {refusal}")
 
 
 def _check_env_options(env: EnvConfig, task: Task | None) -> None:

@@ -25,7 +25,7 @@ from torchrl.data import MultiOneHot, OneHot, TensorSpec
 
 from torchrl_mbe.app.environments import config_observation_spec
 from torchrl_mbe.app.explorers import DiagonalExploration, GaussianExploration, PlanningExplorer, explorer_of
-from torchrl_mbe.modules.observations import hot_entries
+from torchrl_mbe.app.explorers.planning import table_refusal
 
 __all__ = [
     "CATEGORICAL_DYNAMICS",
@@ -95,7 +95,7 @@ def match_observation(cfg: DictConfig, observation_spec: TensorSpec, named: set[
 def _tabulates(cfg: DictConfig, observation_spec: TensorSpec) -> bool:
     """Whether the run gets the transition table: deep exploration of one run on cells (one ``OneHot`` group), planned one step at a time."""
     deep = cfg.exploration.get("novelty_discount") is not None
-    return deep and hot_entries(observation_spec) == 1 and cfg.population == 1 and cfg.exploration.horizon == 1
+    return deep and table_refusal(cfg, observation_spec) is None
 
 
 def matched(cfg: DictConfig) -> DictConfig:

@@ -43,6 +43,20 @@ from torchrl_mbe.rundir import is_int
 DYNAMICS = ("mlp", "oracle", "table")
 """``dynamics.name``: a learned network, the task's true dynamics, or a learned table of one-hot states."""
 
+
+def table_refusal(cfg: DictConfig, observation_spec: TensorSpec) -> str | None:
+    """Why ``dynamics=table`` cannot serve this run, or ``None``: it needs cells (one ``OneHot`` group), one run and one-step plans."""
+    if hot_entries(observation_spec) != 1:
+        return (
+            f"{cfg.env.name} has no one-hot state (a OneHot observation: DeepSea, a Discrete space); use dynamics=mlp."
+        )
+    if cfg.population > 1:
+        return "one table serves one run; use population=1 or dynamics=mlp."
+    if cfg.exploration.horizon > 1:
+        return "predicts from states, not from predictions; use exploration.horizon=1 or dynamics=mlp."
+    return None
+
+
 WINDOW = Rule(lambda v: is_int(v) and v >= 2, "an integer >= 2")
 DISCOUNT = Rule(lambda v: 0 <= v < 1, "a number in [0, 1)")
 
