@@ -24,6 +24,7 @@ from torchrl_mbe.modules import (
     NoveltyPlanner,
     RollingGaussianDensity,
     RollingWindowNovelty,
+    TableNoveltyValue,
     TransitionTable,
     VisitCounts,
 )
@@ -45,6 +46,7 @@ __all__ = [
     "NoveltyValueLoss",
     "RollingGaussianDensity",
     "RollingWindowNovelty",
+    "TableNoveltyValue",
     "TransitionTable",
     "VisitCounts",
     "make_env",

@@ -93,9 +93,7 @@ def test_a_members_best_policy_is_a_single_actors_and_acts_as_the_member_did(exp
             cfg.algo.num_cells,
             torch.device("cpu"),
             input_norm=Standardize(observation_size),
-            q_network=explorer_of(cfg.exploration).q_network(
-                cfg.exploration
-            ),  # a Bootstrapped DQN's ensemble, else plain
+            q_network=explorer_of(cfg.exploration).q_network(cfg),  # a Bootstrapped DQN's ensemble, else plain
         )
         actor.load_state_dict(
             load_safely(tmp_path / f"seed{seed}" / BEST_POLICY)["actor"]

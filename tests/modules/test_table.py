@@ -1,11 +1,19 @@
-"""The transition table: exact after one try, optimistic where untried, and what the planner makes of it."""
+"""The transition table: exact after one try, optimistic where untried, what the planner makes of it, and the value of novelty solved on it."""
 
 import pytest
 import torch
 from tensordict import TensorDict
 from torchrl.data import Categorical, MultiOneHot, OneHot
 
-from torchrl_mbe import DynamicsLoss, NoveltyPlanner, TransitionTable, VisitCounts
+from torchrl_mbe import (
+    DynamicsLoss,
+    NoveltyPlanner,
+    RollingGaussianDensity,
+    RollingWindowNovelty,
+    TableNoveltyValue,
+    TransitionTable,
+    VisitCounts,
+)
 
 CELLS = torch.eye(5)
 
@@ -52,3 +60,45 @@ def test_it_refuses_states_of_several_groups_and_predictions_as_inputs():
         TransitionTable(MultiOneHot([3, 2]), Categorical(2))
     with pytest.raises(ValueError, match="one-hot states or zeros"):
         TransitionTable(5, Categorical(2)).predict(torch.full((1, 5), 0.2), torch.tensor([0]))
+
+
+def chain(length: int) -> tuple[TransitionTable, torch.Tensor]:
+    """A table of a chain of ``length`` cells walked once by action 0 (cell i -> i + 1), and its cells."""
+    cells = torch.eye(length)
+    table = TransitionTable(length, Categorical(2))
+    table.write(cells[:-1], torch.zeros(length - 1, dtype=torch.long), cells[1:])
+    return table, cells
+
+
+def test_value_iteration_carries_an_untried_pair_s_novelty_to_the_start_of_a_long_chain():
+    cells = torch.eye(31)  # cells 0 .. 29 a chain under both actions; cell 29's pairs untried; cell 30 never seen
+    table = TransitionTable(31, Categorical(2))
+    for action in (0, 1):
+        table.write(cells[:29], torch.full((29,), action), cells[1:30])
+    counts = VisitCounts(31)
+    counts.update(cells[:30].repeat(4, 1))  # a tried pair's successor scores 1 / sqrt(5); an untried pair's, 1
+    value = TableNoveltyValue(table, counts, gamma=0.99)
+    value.refresh()
+    read = value(TensorDict({"observation": cells[[0, 28, 29]]}, [3]))["novelty_value"]
+    torch.testing.assert_close(read, torch.tensor([[0.99**29] * 2, [0.99] * 2, [0.0] * 2]))
+
+
+def test_a_successor_that_ended_an_episode_leads_nowhere():
+    table, cells = chain(4)  # cell 3's actions are untried
+    counts = VisitCounts(4)
+    counts.update(cells)
+    value = TableNoveltyValue(table, counts, gamma=0.5)
+    value.refresh()
+    assert value.values[2, 0] > 0  # towards cell 3's untried pairs
+    table.write(cells[[2]], torch.tensor([0]), cells[[3]], torch.tensor([True]))  # arriving in cell 3 ends the episode
+    value.refresh()
+    assert value.values[2, 0] == 0 and value.values[0, 0] == 0.5 * 2**-0.5  # cell 0 sees only cell 2's bonus beyond
+
+
+def test_the_counts_fast_cell_scores_are_the_scores_of_one_hot_states():
+    counts = VisitCounts(4, batch_shape=[2])
+    counts.update(torch.eye(4)[torch.tensor([[0, 1], [0, 2]])])
+    torch.testing.assert_close(counts.cell_scores(), RollingWindowNovelty.cell_scores(counts))
+    gaussian = RollingGaussianDensity(4, window=10)
+    gaussian.update(torch.eye(4)[[0, 1, 2, 0, 1]])
+    torch.testing.assert_close(gaussian.cell_scores(), gaussian.score(torch.eye(4)))

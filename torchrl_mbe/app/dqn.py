@@ -293,7 +293,7 @@ def build_dqn_agent(cfg: DictConfig, env: TransformedEnv) -> DQNAgent:
     q_input_norm = Standardize(
         observation_size if num_members is None else (num_members, observation_size), device=device
     )
-    q_network = explorer_class.q_network(cfg.exploration)
+    q_network = explorer_class.q_network(cfg)
     ensemble = q_network.ensemble  # a Bootstrapped DQN's heads, else None
     observation_spec = env.observation_spec_unbatched["observation"]
     q_actor = partial(

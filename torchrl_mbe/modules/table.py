@@ -1,4 +1,4 @@
-"""A tabular dynamics model of a one-hot observation: each (state, action) pair's observed successor, optimistic where untried."""
+"""A tabular dynamics model of a one-hot observation (each (state, action) pair's observed successor, optimistic where untried), and the value of novelty computed on it."""
 
 from __future__ import annotations
 
@@ -8,9 +8,11 @@ from tensordict.nn import TensorDictModuleBase
 from torchrl.data import TensorSpec
 
 from torchrl_mbe.modules.actions import action_indices, discrete_action_spec, num_discrete_actions
+from torchrl_mbe.modules.novelty import RollingWindowNovelty
 from torchrl_mbe.modules.observations import categorical_groups, flat_observation_size
+from torchrl_mbe.modules.planner import reachable_novelty
 
-__all__ = ["TransitionTable"]
+__all__ = ["TableNoveltyValue", "TransitionTable"]
 
 UNTRIED = -1
 
@@ -82,6 +84,9 @@ class TransitionTable(TensorDictModuleBase):
         self.register_buffer("successor", torch.full((size, num_actions), UNTRIED, dtype=torch.long, device=device))
         # every cell written as a state or a successor, and, last, the state of zeros
         self.register_buffer("seen", torch.zeros(size + 1, dtype=torch.bool, device=device))
+        # the cells an episode ended on arriving at (a terminated transition's successor), and the state of zeros
+        self.register_buffer("terminal", torch.zeros(size + 1, dtype=torch.bool, device=device))
+        self.terminal[size] = True
 
     def extra_repr(self) -> str:
         return f"observation_size={self.observation_size}, num_actions={self.successor.shape[-1]}"
@@ -102,14 +107,31 @@ class TransitionTable(TensorDictModuleBase):
         return torch.where(is_cell, observation.argmax(-1), self.observation_size)
 
     @torch.no_grad()
-    def write(self, observation: torch.Tensor, action: torch.Tensor, next_observation: torch.Tensor) -> None:
-        """Stores the successor of each transition (``[*B, F]`` observations, ``action`` as the spec encodes it)."""
+    def write(
+        self,
+        observation: torch.Tensor,
+        action: torch.Tensor,
+        next_observation: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+    ) -> None:
+        """Stores the successor of each transition (``[*B, F]`` observations, ``action`` as the spec encodes it).
+
+        ``terminated`` (``[*B]`` or ``[*B, 1]``) marks the successors an episode ended on: nothing lies beyond them.
+        """
         state, successor = self.cell_index(observation), self.cell_index(next_observation)
         action = action_indices(action, self.action_spec).expand(state.shape)
         from_cell = state < self.observation_size
         self.successor[state[from_cell], action[from_cell]] = successor[from_cell]
         self.seen[state] = True
         self.seen[successor] = True
+        if terminated is not None:
+            self.terminal[successor[terminated.reshape(state.shape)]] = True
+
+    def optimistic_code(self) -> torch.Tensor:
+        """What an untried pair is predicted to reach, ``(observation_size,)``: the mean code of the states never seen (of all, once each is)."""
+        unseen = ~self.seen[: self.observation_size]
+        optimistic = (unseen if unseen.any() else torch.ones_like(unseen)).float()
+        return optimistic / optimistic.sum()
 
     def predict(self, observation: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The successor's one-hot code after each pair, ``observation.shape``; the mean code of the unseen states where untried."""
@@ -117,9 +139,7 @@ class TransitionTable(TensorDictModuleBase):
         state = self.cell_index(observation)
         action = action_indices(action, self.action_spec).expand(state.shape)
         successor = self.successor[state.clamp(max=size - 1), action].masked_fill(state == size, size)
-        unseen = ~self.seen[:size]
-        optimistic = (unseen if unseen.any() else torch.ones_like(unseen)).to(observation.dtype)
-        optimistic = optimistic / optimistic.sum()
+        optimistic = self.optimistic_code().to(observation.dtype)
         untried = (successor == UNTRIED).unsqueeze(-1)
         codes = observation.new_zeros((*successor.shape, size + 1)).scatter_(
             -1, successor.clamp(min=0).unsqueeze(-1), 1
@@ -130,3 +150,101 @@ class TransitionTable(TensorDictModuleBase):
         observation_key, action_key = self.in_keys
         prediction = self.predict(tensordict.get(observation_key), tensordict.get(action_key))
         return tensordict.set(self.out_keys[0], prediction)
+
+
+class TableNoveltyValue(TensorDictModuleBase):
+    """``U`` computed on a :class:`TransitionTable` by value iteration: the discounted novelty of the rarest state reachable beyond each action.
+
+    The fixed point that :class:`~torchrl_mbe.objectives.NoveltyValueLoss` learns from
+    replayed transitions, solved over every cell of the table at once:
+
+        ``U(s, a) = gamma * max_a' max(n(s', a'), U(s', a'))``
+
+    for a tried pair whose successor ``s'`` did not end an episode, and 0 otherwise.
+    ``n(s', a')`` is the scorer's novelty of the table's prediction (the optimistic code
+    of an untried pair, which a count bonus scores 1). The sweeps start from zeros and
+    stop when nothing changes: sweep ``k`` knows every path of ``k`` steps, so novelty
+    ``N`` steps away reaches the start in ``N`` sweeps, where a learned ``U`` needs ``N``
+    target updates. :meth:`refresh` solves it for the table and the scorer as they are
+    now (the planning explorer calls it after writing each collected batch); the forward
+    pass reads each observation's row.
+
+    Args:
+        table (TransitionTable): the learned dynamics.
+        novelty (RollingWindowNovelty): the planner's scorer; a scorer with a batch of
+            windows (one per env) is averaged over them.
+
+    Keyword Args:
+        gamma (float): the discount of novelty. Defaults to ``0.99``.
+        observation_key (NestedKey): defaults to ``"observation"``.
+        out_key (NestedKey): defaults to ``"novelty_value"``.
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.data import Categorical
+        >>> from torchrl_mbe import TableNoveltyValue, TransitionTable, VisitCounts
+        >>> cells = torch.eye(4)  # a chain 0 -> 1 -> 2 under both actions; cell 2's untried, cell 3 never seen
+        >>> table, counts = TransitionTable(4, Categorical(2)), VisitCounts(4)
+        >>> table.write(cells[[0, 0, 1, 1]], torch.tensor([0, 1, 0, 1]), cells[[1, 1, 2, 2]])
+        >>> counts.update(cells[[0, 1, 2, 2, 2]])
+        >>> value = TableNoveltyValue(table, counts, gamma=0.5)
+        >>> value.refresh()  # an untried pair scores 1: cell 1 is one step before them, cell 0 two
+        >>> value.values[:3]
+        tensor([[0.2500, 0.2500],
+                [0.5000, 0.5000],
+                [0.0000, 0.0000]])
+    """
+
+    def __init__(
+        self,
+        table: TransitionTable,
+        novelty: RollingWindowNovelty,
+        *,
+        gamma: float = 0.99,
+        observation_key: NestedKey = "observation",
+        out_key: NestedKey = "novelty_value",
+    ) -> None:
+        super().__init__()
+        if not 0.0 <= gamma < 1.0:
+            raise ValueError(f"gamma must be in [0, 1) (novelty never ends, so 1 would not converge), got {gamma}.")
+        self.table = table
+        self.novelty = novelty
+        self.gamma = float(gamma)
+        self.in_keys = [observation_key]
+        self.out_keys = [out_key]
+        # U of each cell's actions, and, last, of the state of zeros (nothing beyond it)
+        num_cells, num_actions = table.successor.shape
+        self.register_buffer("values", torch.zeros(num_cells + 1, num_actions, device=table.successor.device))
+
+    @torch.no_grad()
+    def refresh(self) -> None:
+        """Solves ``U`` for the table and the scorer's counts or window as they are now."""
+        successor = self.table.successor
+        novelty = self.successor_novelty()
+        continues = (successor != UNTRIED) & ~self.table.terminal[successor.clamp(min=0)]
+        beyond = successor.clamp(min=0)
+        values = torch.zeros_like(novelty)
+        for _ in range(successor.shape[0] + 1):  # a path visits each cell once at most
+            reachable = reachable_novelty(novelty, values).amax(-1)
+            reachable = torch.cat([reachable, reachable.new_zeros(1)])  # the state of zeros: nothing
+            swept = torch.where(continues, self.gamma * reachable[beyond], 0.0)
+            if torch.equal(swept, values):
+                break
+            values = swept
+        self.values[:-1] = values
+
+    def successor_novelty(self) -> torch.Tensor:
+        """``n(s, a)`` of every pair, ``(observation_size, num_actions)``: the scorer's novelty of the table's prediction."""
+        table, scorer = self.table, self.novelty
+        size = table.observation_size
+        cells = scorer.cell_scores().reshape(-1, size).mean(0)
+        others = torch.stack([cells.new_zeros(size), table.optimistic_code().to(cells)])  # zeros, an untried pair's
+        batch = scorer.batch_shape
+        others = scorer.score(others.view(2, *[1] * len(batch), size).expand(2, *batch, size)).reshape(2, -1).mean(-1)
+        per_successor = torch.cat([cells, others[:1]])  # indexed by the successor's cell, zeros last
+        successor = table.successor
+        return torch.where(successor == UNTRIED, others[1], per_successor[successor.clamp(min=0)])
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict.get(self.in_keys[0])
+        return tensordict.set(self.out_keys[0], self.values[self.table.cell_index(observation)])

@@ -83,8 +83,8 @@ class Explorer:
         return cls(context.actor)
 
     @classmethod
-    def q_network(cls, exploration: DictConfig) -> QNetwork:
-        """The Q-network this explorer acts with: one plain network of ``algo.num_cells`` unless it says otherwise."""
+    def q_network(cls, cfg: DictConfig) -> QNetwork:
+        """The Q-network this run's explorer acts with: one plain network of ``algo.num_cells`` unless it says otherwise."""
         return QNetwork()
 
     @classmethod

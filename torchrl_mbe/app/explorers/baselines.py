@@ -140,8 +140,8 @@ class NoisyExplorer(Explorer):
         return cls(context.actor, context.num_members)
 
     @classmethod
-    def q_network(cls, exploration: DictConfig) -> QNetwork:
-        return QNetwork(noise_std=exploration.std_init)
+    def q_network(cls, cfg: DictConfig) -> QNetwork:
+        return QNetwork(noise_std=cfg.exploration.std_init)
 
     def after_q_update(self, batch: TensorDictBase) -> dict[str, float]:
         self.policy.apply(self.reset_noise)
@@ -179,5 +179,6 @@ class BootstrapExplorer(Explorer):
         return cls(context.actor)
 
     @classmethod
-    def q_network(cls, exploration: DictConfig) -> QNetwork:
+    def q_network(cls, cfg: DictConfig) -> QNetwork:
+        exploration = cfg.exploration
         return QNetwork(ensemble=QEnsemble(exploration.num_heads, exploration.prior_scale, list(exploration.num_cells)))

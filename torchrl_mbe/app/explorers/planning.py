@@ -27,7 +27,7 @@ from torchrl_mbe.app.optim import (
     make_target_updater,
     target_state,
 )
-from torchrl_mbe.app.replay import SUCCESSOR_KEY, flatten_frames, one_step_transitions
+from torchrl_mbe.app.replay import SUCCESSOR_KEY, SUCCESSOR_TERMINATED_KEY, flatten_frames, one_step_transitions
 from torchrl_mbe.app.settings import NON_NEGATIVE, POSITIVE, POSITIVE_INT, Rule, setting
 from torchrl_mbe.envs import resolve_env_id, task_of
 from torchrl_mbe.envs.transforms import NoveltyReward
@@ -36,7 +36,7 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
 from torchrl_mbe.modules.observations import hot_entries
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.table import TransitionTable
+from torchrl_mbe.modules.table import TableNoveltyValue, TransitionTable
 from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
 from torchrl_mbe.rundir import is_int
 
@@ -223,13 +223,18 @@ class PlanningExplorer(EGreedyExplorer):
             device=context.action_spec.device,
         )
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
+        value_iteration = (
+            TableNoveltyValue(dynamics, novelty, gamma=exploration.novelty_discount)
+            if isinstance(dynamics, TransitionTable) and exploration.novelty_discount is not None
+            else None
+        )
         policy = ModelBasedExplorationPolicy(
             context.actor,
             planner,
             **eps_schedule(cfg.algo),
             model_error_threshold=exploration.model_error_threshold,
             value_weight=exploration.value_weight,
-            novelty_value=context.novelty_value,
+            novelty_value=value_iteration or context.novelty_value,
         )
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
@@ -246,8 +251,9 @@ class PlanningExplorer(EGreedyExplorer):
         )
 
     @classmethod
-    def q_network(cls, exploration: DictConfig) -> QNetwork:
-        return QNetwork(novelty_value=exploration.novelty_discount is not None)
+    def q_network(cls, cfg: DictConfig) -> QNetwork:
+        """A network for ``U`` beside the Q-network when novelty is discounted, unless the table's value iteration solves ``U``."""
+        return QNetwork(novelty_value=cfg.exploration.novelty_discount is not None and cfg.dynamics.name != "table")
 
     @staticmethod
     def novelty_value_training(context: ExplorerContext, planner: NoveltyPlanner) -> NoveltyValueTraining | None:
@@ -295,7 +301,14 @@ class PlanningExplorer(EGreedyExplorer):
         self.policy.report_model_error(float(self.val_error.max()))  # populations refuse model_error_threshold
         if isinstance(self.loss.dynamics, TransitionTable):  # a table learns each new frame as it comes
             keys = self.loss.tensor_keys
-            self.loss.dynamics.write(frames[keys.observation], frames[keys.action], frames[keys.next_observation])
+            self.loss.dynamics.write(
+                frames[keys.observation],
+                frames[keys.action],
+                frames[keys.next_observation],
+                frames[SUCCESSOR_TERMINATED_KEY],
+            )
+        if isinstance(self.policy.novelty_value, TableNoveltyValue):
+            self.policy.novelty_value.refresh()
         if self.intrinsic_coef is not None:
             self.intrinsic_reward = member_means(batch.get(("next", "intrinsic_reward")), self.num_members)
 
@@ -446,9 +459,11 @@ class DeepExplorer(CountsExplorer):
     """``exploration=deep``, deep model-based exploration: the action towards the rarest state reachable, not only the rarest next state.
 
     The counts planner (:class:`CountsExplorer`) plus ``U``, the discounted novelty beyond
-    each predicted next state, learned on the replayed transitions
-    (:class:`~torchrl_mbe.objectives.NoveltyValueLoss`): an exploring step maximizes
-    ``max(novelty(D(s, a)), U(s, a))``.
+    each predicted next state: an exploring step maximizes ``max(novelty(D(s, a)), U(s, a))``.
+    A network learns ``U`` on the replayed transitions
+    (:class:`~torchrl_mbe.objectives.NoveltyValueLoss`); with ``dynamics=table``, value
+    iteration on the table solves it after each collected batch
+    (:class:`~torchrl_mbe.modules.table.TableNoveltyValue`), and no network is built for it.
     """
 
     schema = DeepExploration

@@ -128,6 +128,12 @@ class VisitCounts(RollingWindowNovelty):
         visits = self.counts.expand(*code.shape, self.counts.shape[-1]).gather(-1, code.unsqueeze(-1)).squeeze(-1)
         return (visits + 1).rsqrt().to(states.dtype)
 
+    def cell_scores(self) -> torch.Tensor:
+        """Each one-hot state's bonus, ``(*batch_shape, num_features)``: read from the counts without ``bits``."""
+        if self.bits is None and self.num_features is not None:
+            return (self.counts + 1).rsqrt()
+        return super().cell_scores()
+
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
         if self.num_features is None and prefix + "counts" in state_dict:  # window=None keeps no states to size from
             num_features = (

@@ -145,6 +145,12 @@ class RollingWindowNovelty(nn.Module):
         """Novelty of each state, shape ``states.shape[:-1]``; higher = rarer."""
         raise NotImplementedError
 
+    def cell_scores(self) -> torch.Tensor:
+        """The score of each one-hot state (state ``i``: the ``i``-th unit vector), ``(*batch_shape, num_features)``."""
+        size, batch = self.num_features, self.batch_shape
+        cells = torch.eye(size, device=self.num_seen.device).view(size, *[1] * len(batch), size)
+        return self.score(cells.expand(size, *batch, size)).movedim(0, -1)
+
     def _refit_if_stale(self) -> None:
         """Runs :meth:`_refit` if the window changed since the last fit (always, when compiled)."""
         if torch.compiler.is_compiling() or self.fit_stale:
