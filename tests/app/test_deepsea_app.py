@@ -135,14 +135,16 @@ def test_deep_exploration_with_the_true_model_solves_deepsea_20_in_a_sixth_of_th
     assert losses and all(loss >= 0 for loss in losses)  # the value of novelty trained beside the Q-network
 
 
-def test_deep_exploration_with_a_transition_table_solves_deepsea_10_where_the_network_needs_over_100_episodes(
-    compose_default, tmp_path
+def test_deep_exploration_on_cells_finds_deepsea_10_s_treasure_within_30_episodes_and_explores_back_to_it(
+    compose_default, tmp_path, read_table
 ):
-    # The categorical network with exploration=deep solved seeds 0-4 in 110-170 episodes; the table in 40 on seed 0
-    # (docs/notes/deep-exploration.md): a pair tried once is known, an untried one leads somewhere new.
-    cfg = compose_default(
-        "env=deepsea", "exploration=deep", "dynamics=table", "train.episodes=100", "eval.every_frames=100"
-    )
+    # Value iteration on the transition table found the treasure at episodes 15, 19 and 21 on seeds 0-2, where the
+    # categorical network with a learned U needed 110-170 episodes to solve (docs/notes/deep-exploration.md).
+    cfg = compose_default("env=deepsea", "exploration=deep", "train.episodes=40", "train.stop_when_solved=false")
     summary = train(cfg, tmp_path)
-    assert summary["solved"] and summary["episodes"] <= 70, summary["episodes"]
-    assert summary["method"] == "dqn+deep-table"
+    assert summary["method"] == "dqn+deep-table"  # the table, which one run on cells gets
+    first = summary["first_success_episode"]
+    assert first is not None and first <= 30, first
+    after = [int(row["reached_goal"]) for row in read_table(tmp_path, "episodes")[first:]]
+    assert sum(after) >= 0.8 * len(after), after  # the table's Q-values lead the exploring steps back to it
+    assert summary["solved"]

@@ -6,6 +6,7 @@ import pytest
 import torch
 from dynamics_doubles import ShiftDynamics
 from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import ExplorationType, GymEnv, SerialEnv, set_exploration_type
 from torchrl.modules import MLP, QValueActor
@@ -214,16 +215,19 @@ def test_a_collector_runs_the_policy_compiled():
 def test_value_weight_makes_an_exploring_step_weigh_the_q_values_against_the_novelty():
     env = make_env("mountaincar", seed=0)
     td = TensorDict({"observation": torch.tensor([-0.5, 0.0])}, [])
+    prefers_action_0 = TensorDictModule(
+        lambda obs: torch.tensor([1.0, 0.0, 0.0]).expand(*obs.shape[:-1], 3), ["observation"], ["v"]
+    )
     chosen = {}
-    for value_weight in (0.0, 1e6):
-        policy = build_policy(env, dynamics=ShiftDynamics(SHIFTS), value_weight=value_weight)
+    for value_weight, action_value in ((0.0, None), (1e6, None), (1e6, prefers_action_0)):
+        policy = build_policy(env, dynamics=ShiftDynamics(SHIFTS), value_weight=value_weight, action_value=action_value)
         policy.novelty.update(0.01 * torch.randn(50, 2) + torch.tensor([-0.5, 0.0]))
         torch.nn.init.zeros_(policy.actor.module[0].module[-1].weight)
         with torch.no_grad():  # Q prefers action 1, the planner's novelty action 2
             policy.actor.module[0].module[-1].bias.copy_(torch.tensor([0.0, 1.0, 0.0]))
         with set_exploration_type(ExplorationType.RANDOM):
-            chosen[value_weight] = {int(policy(td.clone())["action"].argmax()) for _ in range(5)}
-    assert chosen == {0.0: {2}, 1e6: {1}}
+            chosen[value_weight, action_value is None] = {int(policy(td.clone())["action"].argmax()) for _ in range(5)}
+    assert chosen == {(0.0, True): {2}, (1e6, True): {1}, (1e6, False): {0}}  # the values given replace the actor's
 
 
 def test_a_novelty_reward_scores_each_next_state_against_the_states_the_policy_visited_before_it():

@@ -10,6 +10,7 @@ from torchrl_mbe import (
     NoveltyPlanner,
     RollingGaussianDensity,
     RollingWindowNovelty,
+    TableActionValue,
     TableNoveltyValue,
     TransitionTable,
     VisitCounts,
@@ -102,3 +103,20 @@ def test_the_counts_fast_cell_scores_are_the_scores_of_one_hot_states():
     gaussian = RollingGaussianDensity(4, window=10)
     gaussian.update(torch.eye(4)[[0, 1, 2, 0, 1]])
     torch.testing.assert_close(gaussian.cell_scores(), gaussian.score(torch.eye(4)))
+
+
+def test_a_reward_at_the_end_of_a_chain_is_valued_at_its_start_at_once_and_nothing_beyond_an_episode_end():
+    cells = torch.eye(20)
+    table = TransitionTable(20, Categorical(2))
+    ends = torch.zeros(19, dtype=torch.bool)
+    ends[-1] = True  # arriving in cell 19 ends the episode and pays 1
+    rewards = torch.zeros(19)
+    rewards[-1] = 1.0
+    table.write(cells[:19], torch.ones(19, dtype=torch.long), cells[1:], ends, rewards)
+    table.write(
+        cells[[19]], torch.tensor([0]), cells[[0]], reward=torch.tensor([5.0])
+    )  # a pair from the end: unreachable
+    value = TableActionValue(table, gamma=0.9)
+    value.refresh()
+    torch.testing.assert_close(value.values[[0, 18], 1], torch.tensor([0.9**18, 1.0]))
+    assert value.values[:19, 0].eq(0).all()  # action 0 untried: no value, neither optimistic nor pessimistic

@@ -14,7 +14,7 @@ from torchrl_mbe.modules.novelty import (
     VisitCounts,
 )
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.table import TableNoveltyValue, TransitionTable
+from torchrl_mbe.modules.table import TableActionValue, TableNoveltyValue, TransitionTable
 
 __all__ = [
     "AnnealedEGreedyModule",
@@ -28,6 +28,7 @@ __all__ = [
     "RollingGaussianDensity",
     "RollingWindowNovelty",
     "Standardize",
+    "TableActionValue",
     "TableNoveltyValue",
     "TransitionTable",
     "VisitCounts",

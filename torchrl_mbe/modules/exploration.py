@@ -124,6 +124,10 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
             then scores ``max(novelty, U) + value_weight * action_value``
             (:func:`~torchrl_mbe.modules.planner.reachable_novelty`). Defaults to ``None``
             (the paper: the next state's novelty alone).
+        action_value (TensorDictModuleBase, optional): the values ``value_weight`` weighs,
+            observation to one value per action (the table's
+            :class:`~torchrl_mbe.modules.table.TableActionValue`). Defaults to ``None``: the
+            actor's ``"action_value"``.
         action_key (NestedKey): the action entry. Defaults to ``"action"``.
 
     Examples:
@@ -154,6 +158,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         model_error_threshold: float | None = None,
         value_weight: float = 0.0,
         novelty_value: TensorDictModuleBase | None = None,
+        action_value: TensorDictModuleBase | None = None,
         action_key: NestedKey = "action",
     ) -> None:
         device = planner.candidate_actions.device
@@ -171,6 +176,7 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         self.model_error_threshold = model_error_threshold
         self.value_weight = float(value_weight)
         self.novelty_value = novelty_value
+        self.action_value = action_value
         self.observation_key = planner.in_keys[0]
         self.in_keys = list(dict.fromkeys([*actor.in_keys, self.observation_key]))
         self.out_keys = list(actor.out_keys)
@@ -227,7 +233,12 @@ class ModelBasedExplorationPolicy(AnnealedEGreedyModule):
         if self.novelty_value is not None:
             scores = reachable_novelty(scores, action_values(self.novelty_value, observation))
         if self.value_weight:
-            scores = scores + self.value_weight * tensordict.get("action_value")
+            values = (
+                tensordict.get("action_value")
+                if self.action_value is None
+                else action_values(self.action_value, observation)
+            )
+            scores = scores + self.value_weight * values
         return self.planner.actions_at(random_argmax(scores))
 
     def _random_action(self, tensordict: TensorDictBase) -> torch.Tensor:

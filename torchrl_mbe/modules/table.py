@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import torch
 from tensordict import NestedKey, TensorDictBase
 from tensordict.nn import TensorDictModuleBase
@@ -12,7 +14,7 @@ from torchrl_mbe.modules.novelty import RollingWindowNovelty
 from torchrl_mbe.modules.observations import categorical_groups, flat_observation_size
 from torchrl_mbe.modules.planner import reachable_novelty
 
-__all__ = ["TableNoveltyValue", "TransitionTable"]
+__all__ = ["TableActionValue", "TableNoveltyValue", "TransitionTable"]
 
 UNTRIED = -1
 
@@ -87,6 +89,8 @@ class TransitionTable(TensorDictModuleBase):
         # the cells an episode ended on arriving at (a terminated transition's successor), and the state of zeros
         self.register_buffer("terminal", torch.zeros(size + 1, dtype=torch.bool, device=device))
         self.terminal[size] = True
+        # the reward each pair last gave
+        self.register_buffer("reward", torch.zeros(size, num_actions, device=device))
 
     def extra_repr(self) -> str:
         return f"observation_size={self.observation_size}, num_actions={self.successor.shape[-1]}"
@@ -113,10 +117,12 @@ class TransitionTable(TensorDictModuleBase):
         action: torch.Tensor,
         next_observation: torch.Tensor,
         terminated: torch.Tensor | None = None,
+        reward: torch.Tensor | None = None,
     ) -> None:
         """Stores the successor of each transition (``[*B, F]`` observations, ``action`` as the spec encodes it).
 
-        ``terminated`` (``[*B]`` or ``[*B, 1]``) marks the successors an episode ended on: nothing lies beyond them.
+        ``terminated`` (``[*B]`` or ``[*B, 1]``) marks the successors an episode ended on: nothing
+        lies beyond them. ``reward`` (the same shape) is each pair's reward.
         """
         state, successor = self.cell_index(observation), self.cell_index(next_observation)
         action = action_indices(action, self.action_spec).expand(state.shape)
@@ -126,6 +132,8 @@ class TransitionTable(TensorDictModuleBase):
         self.seen[successor] = True
         if terminated is not None:
             self.terminal[successor[terminated.reshape(state.shape)]] = True
+        if reward is not None:
+            self.reward[state[from_cell], action[from_cell]] = reward.reshape(state.shape)[from_cell].to(self.reward)
 
     def optimistic_code(self) -> torch.Tensor:
         """What an untried pair is predicted to reach, ``(observation_size,)``: the mean code of the states never seen (of all, once each is)."""
@@ -152,7 +160,82 @@ class TransitionTable(TensorDictModuleBase):
         return tensordict.set(self.out_keys[0], prediction)
 
 
-class TableNoveltyValue(TensorDictModuleBase):
+class TableValueIteration(TensorDictModuleBase):
+    """Base class: action values solved on a :class:`TransitionTable` by value iteration, read by each observation's cell.
+
+    :meth:`refresh` sweeps from zeros until nothing changes (at most one sweep a cell:
+    sweep ``k`` knows every path of ``k`` steps, so a value ``N`` steps away reaches the
+    start in ``N`` sweeps, where a learned one needs ``N`` target updates). A pair's value
+    beyond it is ``gamma`` times its successor's value, 0 for an untried pair or a
+    successor that ended an episode. Subclasses give each pair's own term
+    (:meth:`pair_terms`), a state's value (:meth:`state_values`) and how a pair adds its
+    term to what lies beyond (:meth:`backup`).
+
+    Args:
+        table (TransitionTable): the learned dynamics.
+
+    Keyword Args:
+        gamma (float): the discount, in ``[0, 1]`` (the sweeps stop after one a cell, so 1
+            ends too). Defaults to ``0.99``.
+        observation_key (NestedKey): defaults to ``"observation"``.
+        out_key (NestedKey): defaults to the subclass's ``default_out_key``.
+    """
+
+    default_out_key: ClassVar[str]
+
+    def __init__(
+        self,
+        table: TransitionTable,
+        *,
+        gamma: float = 0.99,
+        observation_key: NestedKey = "observation",
+        out_key: NestedKey | None = None,
+    ) -> None:
+        super().__init__()
+        if not 0.0 <= gamma <= 1.0:
+            raise ValueError(f"gamma must be in [0, 1], got {gamma}.")
+        self.table = table
+        self.gamma = float(gamma)
+        self.in_keys = [observation_key]
+        self.out_keys = [out_key or self.default_out_key]
+        num_cells, num_actions = table.successor.shape
+        # each cell's action values, and, last, the state of zeros' (nothing beyond it)
+        self.register_buffer("values", torch.zeros(num_cells + 1, num_actions, device=table.successor.device))
+
+    @torch.no_grad()
+    def refresh(self) -> None:
+        """Solves the values for the table (and the subclass's terms) as they are now."""
+        successor = self.table.successor
+        terms, tried = self.pair_terms(), successor != UNTRIED
+        continues = tried & ~self.table.terminal[successor.clamp(min=0)]
+        beyond = successor.clamp(min=0)
+        values = torch.zeros_like(terms)
+        for _ in range(successor.shape[0] + 1):  # a path visits each cell once at most
+            state_values = torch.cat([self.state_values(terms, values), values.new_zeros(1)])  # zeros: nothing
+            swept = self.backup(terms, tried, torch.where(continues, self.gamma * state_values[beyond], 0.0))
+            if torch.equal(swept, values):
+                break
+            values = swept
+        self.values[:-1] = values
+
+    def pair_terms(self) -> torch.Tensor:
+        """Each pair's own term, ``(observation_size, num_actions)``."""
+        raise NotImplementedError
+
+    def state_values(self, terms: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        """Each cell's value from its pairs' terms and values, ``(observation_size,)``."""
+        raise NotImplementedError
+
+    def backup(self, terms: torch.Tensor, tried: torch.Tensor, beyond: torch.Tensor) -> torch.Tensor:
+        """Each pair's value from its term and the discounted value beyond it."""
+        raise NotImplementedError
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        observation = tensordict.get(self.in_keys[0])
+        return tensordict.set(self.out_keys[0], self.values[self.table.cell_index(observation)])
+
+
+class TableNoveltyValue(TableValueIteration):
     """``U`` computed on a :class:`TransitionTable` by value iteration: the discounted novelty of the rarest state reachable beyond each action.
 
     The fixed point that :class:`~torchrl_mbe.objectives.NoveltyValueLoss` learns from
@@ -162,12 +245,9 @@ class TableNoveltyValue(TensorDictModuleBase):
 
     for a tried pair whose successor ``s'`` did not end an episode, and 0 otherwise.
     ``n(s', a')`` is the scorer's novelty of the table's prediction (the optimistic code
-    of an untried pair, which a count bonus scores 1). The sweeps start from zeros and
-    stop when nothing changes: sweep ``k`` knows every path of ``k`` steps, so novelty
-    ``N`` steps away reaches the start in ``N`` sweeps, where a learned ``U`` needs ``N``
-    target updates. :meth:`refresh` solves it for the table and the scorer as they are
-    now (the planning explorer calls it after writing each collected batch); the forward
-    pass reads each observation's row.
+    of an untried pair, which a count bonus scores 1). :meth:`refresh` solves it for the
+    table and the scorer as they are now (the planning explorer calls it after writing
+    each collected batch); the forward pass reads each observation's row.
 
     Args:
         table (TransitionTable): the learned dynamics.
@@ -175,9 +255,8 @@ class TableNoveltyValue(TensorDictModuleBase):
             windows (one per env) is averaged over them.
 
     Keyword Args:
-        gamma (float): the discount of novelty. Defaults to ``0.99``.
-        observation_key (NestedKey): defaults to ``"observation"``.
-        out_key (NestedKey): defaults to ``"novelty_value"``.
+        gamma, observation_key, out_key: as :class:`TableValueIteration`'s
+            (``out_key`` defaults to ``"novelty_value"``).
 
     Examples:
         >>> import torch
@@ -195,46 +274,14 @@ class TableNoveltyValue(TensorDictModuleBase):
                 [0.0000, 0.0000]])
     """
 
-    def __init__(
-        self,
-        table: TransitionTable,
-        novelty: RollingWindowNovelty,
-        *,
-        gamma: float = 0.99,
-        observation_key: NestedKey = "observation",
-        out_key: NestedKey = "novelty_value",
-    ) -> None:
-        super().__init__()
-        if not 0.0 <= gamma < 1.0:
-            raise ValueError(f"gamma must be in [0, 1) (novelty never ends, so 1 would not converge), got {gamma}.")
-        self.table = table
+    default_out_key = "novelty_value"
+
+    def __init__(self, table: TransitionTable, novelty: RollingWindowNovelty, **kwargs) -> None:
+        super().__init__(table, **kwargs)
         self.novelty = novelty
-        self.gamma = float(gamma)
-        self.in_keys = [observation_key]
-        self.out_keys = [out_key]
-        # U of each cell's actions, and, last, of the state of zeros (nothing beyond it)
-        num_cells, num_actions = table.successor.shape
-        self.register_buffer("values", torch.zeros(num_cells + 1, num_actions, device=table.successor.device))
 
-    @torch.no_grad()
-    def refresh(self) -> None:
-        """Solves ``U`` for the table and the scorer's counts or window as they are now."""
-        successor = self.table.successor
-        novelty = self.successor_novelty()
-        continues = (successor != UNTRIED) & ~self.table.terminal[successor.clamp(min=0)]
-        beyond = successor.clamp(min=0)
-        values = torch.zeros_like(novelty)
-        for _ in range(successor.shape[0] + 1):  # a path visits each cell once at most
-            reachable = reachable_novelty(novelty, values).amax(-1)
-            reachable = torch.cat([reachable, reachable.new_zeros(1)])  # the state of zeros: nothing
-            swept = torch.where(continues, self.gamma * reachable[beyond], 0.0)
-            if torch.equal(swept, values):
-                break
-            values = swept
-        self.values[:-1] = values
-
-    def successor_novelty(self) -> torch.Tensor:
-        """``n(s, a)`` of every pair, ``(observation_size, num_actions)``: the scorer's novelty of the table's prediction."""
+    def pair_terms(self) -> torch.Tensor:
+        """``n(s, a)`` of every pair: the scorer's novelty of the table's prediction."""
         table, scorer = self.table, self.novelty
         size = table.observation_size
         cells = scorer.cell_scores().reshape(-1, size).mean(0)
@@ -245,6 +292,50 @@ class TableNoveltyValue(TensorDictModuleBase):
         successor = table.successor
         return torch.where(successor == UNTRIED, others[1], per_successor[successor.clamp(min=0)])
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        observation = tensordict.get(self.in_keys[0])
-        return tensordict.set(self.out_keys[0], self.values[self.table.cell_index(observation)])
+    def state_values(self, terms: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        return reachable_novelty(terms, values).amax(-1)
+
+    def backup(self, terms: torch.Tensor, tried: torch.Tensor, beyond: torch.Tensor) -> torch.Tensor:
+        return beyond  # a pair's own novelty is the planner's n, scored beside U
+
+
+class TableActionValue(TableValueIteration):
+    """``Q(s, a)`` of the rewards a :class:`TransitionTable` recorded, solved by value iteration.
+
+    ``Q(s, a) = r(s, a) + gamma * max_a' Q(s', a')`` for a tried pair (``r`` its last
+    reward; nothing beyond a successor that ended an episode), 0 for an untried one. Once
+    a reward is found, the path to it is valued at once, all the way back; an exploring
+    step that weighs these values (``value_weight``) returns to it while the Q-network
+    is still learning it.
+
+    Args:
+        table (TransitionTable): the learned dynamics and rewards.
+
+    Keyword Args:
+        gamma, observation_key, out_key: as :class:`TableValueIteration`'s
+            (``out_key`` defaults to ``"table_action_value"``).
+
+    Examples:
+        >>> import torch
+        >>> from torchrl.data import Categorical
+        >>> from torchrl_mbe import TableActionValue, TransitionTable
+        >>> cells = torch.eye(3)  # 0 -> 1 -> 2 by action 1, which pays 1 on arriving in cell 2
+        >>> table = TransitionTable(3, Categorical(2))
+        >>> table.write(cells[[0, 1]], torch.tensor([1, 1]), cells[[1, 2]], reward=torch.tensor([0.0, 1.0]))
+        >>> value = TableActionValue(table, gamma=0.9)
+        >>> value.refresh()
+        >>> value.values[:2]
+        tensor([[0.0000, 0.9000],
+                [0.0000, 1.0000]])
+    """
+
+    default_out_key = "table_action_value"
+
+    def pair_terms(self) -> torch.Tensor:
+        return self.table.reward
+
+    def state_values(self, terms: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+        return values.amax(-1)
+
+    def backup(self, terms: torch.Tensor, tried: torch.Tensor, beyond: torch.Tensor) -> torch.Tensor:
+        return torch.where(tried, terms + beyond, 0.0)

@@ -8,6 +8,7 @@ from typing import ClassVar
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModuleBase
 from torchrl.data import OneHot, ReplayBuffer, TensorSpec
 
 from torchrl_mbe.app.explorers.base import (
@@ -36,7 +37,7 @@ from torchrl_mbe.modules.dynamics import DynamicsModel
 from torchrl_mbe.modules.exploration import ModelBasedExplorationPolicy
 from torchrl_mbe.modules.observations import hot_entries
 from torchrl_mbe.modules.planner import NoveltyPlanner
-from torchrl_mbe.modules.table import TableNoveltyValue, TransitionTable
+from torchrl_mbe.modules.table import TableActionValue, TableNoveltyValue, TableValueIteration, TransitionTable
 from torchrl_mbe.objectives import DynamicsLoss, NoveltyValueLoss
 from torchrl_mbe.rundir import is_int
 
@@ -223,18 +224,15 @@ class PlanningExplorer(EGreedyExplorer):
             device=context.action_spec.device,
         )
         planner = NoveltyPlanner(dynamics, novelty, context.action_spec, horizon=exploration.horizon)
-        value_iteration = (
-            TableNoveltyValue(dynamics, novelty, gamma=exploration.novelty_discount)
-            if isinstance(dynamics, TransitionTable) and exploration.novelty_discount is not None
-            else None
-        )
+        solved = cls.table_values(dynamics, novelty, cfg)
         policy = ModelBasedExplorationPolicy(
             context.actor,
             planner,
             **eps_schedule(cfg.algo),
             model_error_threshold=exploration.model_error_threshold,
             value_weight=exploration.value_weight,
-            novelty_value=value_iteration or context.novelty_value,
+            novelty_value=solved.get("novelty_value", context.novelty_value),
+            action_value=solved.get("action_value"),
         )
         loss = DynamicsLoss(dynamics)
         loss.set_keys(next_observation=SUCCESSOR_KEY)
@@ -249,6 +247,20 @@ class PlanningExplorer(EGreedyExplorer):
         return cls(
             policy, loss, training, context.num_members, intrinsic_coef, cls.novelty_value_training(context, planner)
         )
+
+    @staticmethod
+    def table_values(
+        dynamics: TensorDictModuleBase, novelty: scorers.RollingWindowNovelty, cfg: DictConfig
+    ) -> dict[str, TableValueIteration]:
+        """What value iteration on a transition table solves for the policy: ``U`` (novelty discounted) and the weighed Q-values (``value_weight`` set)."""
+        if not isinstance(dynamics, TransitionTable):
+            return {}
+        solved = {}
+        if cfg.exploration.novelty_discount is not None:
+            solved["novelty_value"] = TableNoveltyValue(dynamics, novelty, gamma=cfg.exploration.novelty_discount)
+        if cfg.exploration.value_weight:
+            solved["action_value"] = TableActionValue(dynamics, gamma=cfg.algo.gamma)
+        return solved
 
     @classmethod
     def q_network(cls, cfg: DictConfig) -> QNetwork:
@@ -306,9 +318,11 @@ class PlanningExplorer(EGreedyExplorer):
                 frames[keys.action],
                 frames[keys.next_observation],
                 frames[SUCCESSOR_TERMINATED_KEY],
+                frames["next", "reward"],
             )
-        if isinstance(self.policy.novelty_value, TableNoveltyValue):
-            self.policy.novelty_value.refresh()
+        for values in (self.policy.novelty_value, self.policy.action_value):
+            if isinstance(values, TableValueIteration):
+                values.refresh()
         if self.intrinsic_coef is not None:
             self.intrinsic_reward = member_means(batch.get(("next", "intrinsic_reward")), self.num_members)
 
