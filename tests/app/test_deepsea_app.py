@@ -148,3 +148,15 @@ def test_deep_exploration_on_cells_finds_deepsea_10_s_treasure_within_30_episode
     after = [int(row["reached_goal"]) for row in read_table(tmp_path, "episodes")[first:]]
     assert sum(after) >= 0.8 * len(after), after  # the table's Q-values lead the exploring steps back to it
     assert summary["solved"]
+
+
+def test_q_updates_wait_for_the_first_stored_transition_when_n_step_windows_hold_the_first_episode_back(
+    compose_default, tmp_path
+):
+    # The preset's n-step windows span an episode, so the first episode is stored with the second: learning
+    # from frame N on once sampled an empty buffer (DeepSea-100, where the preset starts at 100 frames).
+    cfg = compose_default(
+        "env=deepsea", "env.size=12", "exploration=deep", "algo.learning_starts=12", "train.episodes=4"
+    )
+    summary = train(cfg, tmp_path)
+    assert summary["episodes"] == 4 and summary["q_updates"] > 0

@@ -215,7 +215,7 @@ class DQNAgent:
         Returns a row of the updates table every ``log_every_updates`` Q updates.
         """
         settings = self.settings
-        if frames < settings.learning_starts:
+        if frames < settings.learning_starts or not len(replay_buffer):  # n-step windows hold the last n frames back
             return []
         for group in self.q_step.optimizer.param_groups:
             group["lr"] = q_learning_rate(settings, frames)
